@@ -1,0 +1,15 @@
+"""Multi-head critics and the weighted per-component advantage estimator."""
+
+from torchrl_ahrs.value.critic import HeadwiseLinear, MultiHeadCritic, make_mlp
+from torchrl_ahrs.value.functional import mix_advantages, normalize_components, stack_components
+from torchrl_ahrs.value.gae import WeightedMultiGAE
+
+__all__ = [
+    "HeadwiseLinear",
+    "MultiHeadCritic",
+    "WeightedMultiGAE",
+    "make_mlp",
+    "mix_advantages",
+    "normalize_components",
+    "stack_components",
+]

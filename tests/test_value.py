@@ -1,0 +1,120 @@
+"""WeightedMultiGAE against TorchRL's own GAE run per component; critic and mixing checks."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torchrl.objectives.value import GAE
+
+from torchrl_ahrs.value import MultiHeadCritic, WeightedMultiGAE, mix_advantages
+
+B, T, K, OBS = 6, 40, 5, 3
+NAMES = [f"c{k}" for k in range(K)]
+
+
+def make_batch(seed=0, done_rate=0.08):
+    gen = torch.Generator().manual_seed(seed)
+    done = torch.rand(B, T, 1, generator=gen) < done_rate
+    terminated = done & (torch.rand(B, T, 1, generator=gen) < 0.5)  # some ends are time limits
+    rewards = {name: torch.randn(B, T, 1, generator=gen) * (k + 1) for k, name in enumerate(NAMES)}
+    return TensorDict(
+        {
+            "observation": torch.randn(B, T, OBS, generator=gen),
+            "next": {
+                "observation": torch.randn(B, T, OBS, generator=gen),
+                "reward": rewards,
+                "done": done,
+                "terminated": terminated,
+            },
+        },
+        [B, T],
+    )
+
+
+def make_critic(heads=K, separate=False):
+    torch.manual_seed(1)
+    net = MultiHeadCritic(OBS, heads, hidden_sizes=[16], separate_heads=separate)
+    return TensorDictModule(net, in_keys=["observation"], out_keys=["state_value"])
+
+
+@pytest.mark.parametrize("separate", [False, True])
+def test_each_component_equals_torchrl_gae_on_that_component_alone(separate):
+    critic = make_critic(separate=separate)
+    batch = make_batch()
+    out = WeightedMultiGAE(NAMES, gamma=0.97, lmbda=0.9, value_network=critic)(batch.clone())
+    for k, name in enumerate(NAMES):
+        head_k = TensorDictModule(lambda obs, k=k: critic.module(obs)[..., k : k + 1], ["observation"], ["state_value"])
+        oracle = GAE(gamma=0.97, lmbda=0.9, value_network=head_k)
+        oracle.set_keys(reward=("reward", name))
+        expected = oracle(batch.clone())
+        assert (expected["advantage"][..., 0] - out["advantage_components"][..., k]).abs().max() <= 1e-5
+        assert (expected["value_target"][..., 0] - out["value_target"][..., k]).abs().max() <= 1e-5
+
+
+def test_mixed_advantage_is_the_weighted_sum_of_component_advantages():
+    weights = torch.tensor([0.5, 1.0, 1.5, 0.0, 2.0])
+    out = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic(), weights=weights)(make_batch())
+    components = out["advantage_components"]
+    expected = sum(weights[k] * components[..., k : k + 1] for k in range(K))
+    assert out["advantage"].shape == (B, T, 1)
+    torch.testing.assert_close(out["advantage"], expected)
+
+
+def test_component_normalisation_makes_each_column_standard_before_mixing():
+    # with one-hot weights the mixed advantage is exactly that component, standardised
+    weights = torch.zeros(K)
+    weights[4] = 1.0
+    estimator = WeightedMultiGAE(
+        NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic(), weights=weights, normalize_components=True
+    )
+    mixed = estimator(make_batch())["advantage"]
+    assert mixed.mean().abs() < 1e-5
+    assert (mixed.std() - 1).abs() < 1e-3
+
+
+def test_weights_are_replaceable_and_validated():
+    estimator = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic())
+    before = estimator(make_batch())["advantage"]
+    estimator.set_weights([2.0] * K)
+    after = estimator(make_batch())["advantage"]
+    torch.testing.assert_close(after, 2 * before)
+    assert "weights" in estimator.state_dict()
+    with pytest.raises(ValueError, match="shape"):
+        estimator.set_weights([1.0, 2.0])
+    with pytest.raises(ValueError, match="finite"):
+        estimator.set_weights([float("nan")] * K)
+
+
+def test_critic_with_wrong_number_of_heads_fails_loudly():
+    estimator = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic(heads=1))
+    with pytest.raises(ValueError, match="K heads"):
+        estimator(make_batch())
+
+
+def test_mismatched_component_shapes_are_refused():
+    batch = make_batch()
+    batch["next", "reward", "c0"] = torch.zeros(B, T, 2)
+    with pytest.raises(ValueError, match="different shapes"):
+        WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic())(batch)
+
+
+def test_mix_refuses_wrong_weight_shape():
+    with pytest.raises(ValueError, match=r"shape \[K\]"):
+        mix_advantages(torch.zeros(3, 2), torch.ones(3))
+
+
+def test_separate_heads_are_independent():
+    critic = MultiHeadCritic(OBS, 3, [8], separate_heads=True)
+    obs = torch.randn(4, OBS, requires_grad=True)
+    critic(obs)[:, 1].sum().backward()
+    grads = critic.net[0].weight.grad  # [K, in, out]
+    assert grads[1].abs().sum() > 0
+    assert grads[0].abs().sum() == 0 and grads[2].abs().sum() == 0
+
+
+def test_keys_are_configurable():
+    batch = make_batch().rename_key_(("next", "reward"), ("next", "parts"))
+    estimator = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic())
+    estimator.set_keys(reward_tree="parts", advantage="adv", advantage_components="adv_k")
+    out = estimator(batch)
+    assert out["adv"].shape == (B, T, 1) and out["adv_k"].shape == (B, T, K)

@@ -1,0 +1,42 @@
+"""Pure tensor functions behind :class:`~torchrl_ahrs.value.WeightedMultiGAE`."""
+
+from __future__ import annotations
+
+import torch
+
+
+def normalize_components(advantages: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """Standardises each component's advantage over every batch entry: ``[*B, K] -> [*B, K]``.
+
+    Without it, a component whose rewards are 100x larger dominates the mix whatever its weight;
+    with it, the weights alone set each component's share of the policy gradient.
+    """
+    flat = advantages.reshape(-1, advantages.shape[-1])
+    mean = flat.mean(0)  # mu_k = E[A_k]
+    std = flat.std(0) if flat.shape[0] > 1 else torch.ones_like(mean)  # sigma_k = std[A_k]
+    return (advantages - mean) / (std + eps)  # A_k <- (A_k - mu_k) / (sigma_k + eps)
+
+
+def mix_advantages(advantages: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Weighted sum over components: ``[*B, K], [K] -> [*B, 1]``.
+
+    Example:
+        >>> mix_advantages(torch.tensor([[1.0, 2.0]]), torch.tensor([0.5, 1.5]))
+        tensor([[3.5000]])
+    """
+    if weights.dim() != 1 or advantages.shape[-1] != weights.shape[0]:
+        raise ValueError(
+            f"weights of shape {tuple(weights.shape)} do not match advantages with K={advantages.shape[-1]} "
+            "components; expected weights of shape [K]"
+        )
+    return (advantages * weights).sum(-1, keepdim=True)  # A = sum_k w_k A_k
+
+
+def stack_components(leaves: list[torch.Tensor]) -> torch.Tensor:
+    """K leaves ``[*B, 1]`` (or ``[*B]``) -> ``[*B, K]``, refusing leaves of different shapes."""
+    shapes = {tuple(leaf.shape) for leaf in leaves}
+    if len(shapes) != 1:
+        raise ValueError(f"reward components have different shapes {sorted(shapes)}; expected one [*B, 1] shape")
+    if leaves[0].shape[-1:] != (1,):
+        leaves = [leaf.unsqueeze(-1) for leaf in leaves]
+    return torch.cat(leaves, dim=-1)

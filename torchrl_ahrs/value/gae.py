@@ -1,0 +1,138 @@
+"""Per-component GAE in one vectorized pass, mixed by replaceable weights."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torchrl.objectives.value import GAE
+
+from torchrl_ahrs.value.functional import mix_advantages, normalize_components, stack_components
+
+
+class WeightedMultiGAE(GAE):
+    """GAE over K reward components at once, mixed into one advantage for the policy.
+
+    Reads the component leaves ``("next", "reward", c)`` in ``components`` order, stacks them into
+    ``("next", "component_rewards")`` ``[*B, T, K]``, and runs TorchRL's GAE recursion once with a
+    K-column value network (done/terminated are expanded to K). Writes:
+
+    - ``"advantage_components"`` ``[*B, T, K]``: each component's GAE advantage ``A_k``;
+    - ``"value_target"`` ``[*B, T, K]``: each head's regression target;
+    - ``"advantage"`` ``[*B, T, 1]``: ``Σ_k w_k A_k`` — the signal the policy is trained on.
+
+    With ``normalize_components=True`` each ``A_k`` is standardised over the batch before mixing, so the
+    weights alone (not the reward scales) decide each component's share of the gradient; the
+    unnormalised ``A_k`` stay in ``"advantage_components"``.
+
+    ``weights`` is a registered buffer ``[K]`` (checkpointed with the module); replace it any time with
+    :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward_tree``, ``reward``,
+    ``advantage``, ``advantage_components``, ``value_target``, ``value``, ``done``, ``terminated``).
+
+    Args:
+        components: reward component names; their order is the K axis.
+        gamma, lmbda: GAE discount and lambda.
+        value_network: a module writing ``"state_value"`` ``[*B, T, K]``.
+        weights: initial ``[K]`` weights (default all ones).
+        normalize_components: standardise each component's advantage before mixing.
+        **kwargs: forwarded to :class:`torchrl.objectives.value.GAE`.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from tensordict.nn import TensorDictModule
+        >>> critic = TensorDictModule(torch.nn.Linear(3, 2), in_keys=["observation"], out_keys=["state_value"])
+        >>> gae = WeightedMultiGAE(["a", "b"], gamma=0.99, lmbda=0.95, value_network=critic,
+        ...                        weights=torch.tensor([0.5, 1.5]))
+        >>> B, T = 4, 8
+        >>> td = TensorDict({
+        ...     "observation": torch.randn(B, T, 3),
+        ...     "next": {"observation": torch.randn(B, T, 3),
+        ...              "reward": {"a": torch.randn(B, T, 1), "b": torch.randn(B, T, 1)},
+        ...              "done": torch.zeros(B, T, 1, dtype=torch.bool),
+        ...              "terminated": torch.zeros(B, T, 1, dtype=torch.bool)}}, [B, T])
+        >>> td = gae(td)
+        >>> td["advantage_components"].shape, td["advantage"].shape
+        (torch.Size([4, 8, 2]), torch.Size([4, 8, 1]))
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        # every field is restated: TorchRL's set_keys only accepts names defined on this class itself
+        advantage: NestedKey = "advantage"
+        advantage_components: NestedKey = "advantage_components"
+        value_target: NestedKey = "value_target"
+        value: NestedKey = "state_value"
+        reward_tree: NestedKey = "reward"
+        reward: NestedKey = "component_rewards"
+        done: NestedKey = "done"
+        terminated: NestedKey = "terminated"
+        steps_to_next_obs: NestedKey = "steps_to_next_obs"
+        sample_log_prob: NestedKey | None = None
+
+    default_keys = _AcceptedKeys
+
+    def __init__(
+        self,
+        components: Sequence[str],
+        *,
+        gamma: float,
+        lmbda: float,
+        value_network: TensorDictModule | None,
+        weights: torch.Tensor | None = None,
+        normalize_components: bool = False,
+        **kwargs,
+    ):
+        super().__init__(gamma=gamma, lmbda=lmbda, value_network=value_network, **kwargs)
+        self.components = list(components)
+        if not self.components:
+            raise ValueError("WeightedMultiGAE needs at least one component")
+        self.normalize_components = normalize_components
+        self.register_buffer("weights", torch.ones(len(self.components)))
+        if weights is not None:
+            self.set_weights(weights)
+
+    @property
+    def num_components(self) -> int:
+        return len(self.components)
+
+    def set_weights(self, weights: torch.Tensor | Sequence[float]) -> None:
+        """Replaces the mixing weights in place; they must be K finite numbers."""
+        weights = torch.as_tensor(weights, dtype=self.weights.dtype, device=self.weights.device)
+        if weights.shape != self.weights.shape:
+            raise ValueError(
+                f"weights must have shape [K]=[{self.num_components}] for components {self.components}, "
+                f"got {tuple(weights.shape)}"
+            )
+        if not torch.isfinite(weights).all():
+            raise ValueError(f"weights must be finite, got {weights.tolist()}")
+        self.weights.copy_(weights)
+
+    def component_reward_keys(self) -> list[tuple]:
+        tree = self.tensor_keys.reward_tree
+        tree = tree if isinstance(tree, tuple) else (tree,)
+        return [("next", *tree, name) for name in self.components]
+
+    @torch.no_grad()
+    def forward(self, tensordict: TensorDictBase, **kwargs) -> TensorDictBase:
+        rewards = stack_components([tensordict.get(key) for key in self.component_reward_keys()])  # [*B, T, K]
+        tensordict.set(("next", self.tensor_keys.reward), rewards)
+        super().forward(tensordict, **kwargs)
+        component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
+        tensordict.set(self.tensor_keys.advantage_components, component_advantages)
+        to_mix = normalize_components(component_advantages) if self.normalize_components else component_advantages
+        tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
+        return tensordict
+
+    def _prepare_signals(self, reward, done, terminated, value):
+        # TorchRL's recursion broadcasts silently; a critic with the wrong number of heads must fail loudly.
+        if value.shape[-1] != reward.shape[-1]:
+            raise ValueError(
+                f"the value network returned {value.shape[-1]} value(s) per state but there are "
+                f"{reward.shape[-1]} reward components {self.components}; build the critic with K heads"
+            )
+        return reward, done.expand_as(reward), terminated.expand_as(reward)
