@@ -1,0 +1,115 @@
+"""EnvPoolEnv (our TorchRL wrapper over EnvPool 1.2.5) and the Ant-v5 task built on it.
+
+Oracles: EnvPool's own ``info`` (reward terms, ``elapsed_step``) and its native reward.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torchrl.collectors import Collector
+from torchrl.envs.utils import check_env_specs
+
+pytest.importorskip("envpool")
+
+from torchrl_ahrs.envs.envpool import EnvPoolEnv  # noqa: E402
+from torchrl_ahrs.envs.registry import load_task_config, make_env  # noqa: E402
+
+ANT_TERMS = ("reward_forward", "reward_ctrl", "reward_contact", "reward_survive")
+MAX_STEPS = 40
+
+
+def _short_ant(num_envs: int = 8, seed: int = 0) -> EnvPoolEnv:
+    # healthy_z_min 0.5 makes random actions end some episodes by termination, MAX_STEPS by truncation
+    return EnvPoolEnv("Ant-v5", num_envs=num_envs, seed=seed, max_episode_steps=MAX_STEPS, healthy_z_min=0.5)
+
+
+def _collect(env, frames: int) -> torch.Tensor:
+    torch.manual_seed(0)
+    collector = Collector(env, policy=None, frames_per_batch=frames, total_frames=frames)
+    batch = next(iter(collector))
+    collector.shutdown()
+    return batch
+
+
+def test_specs_flat_and_dict_observations():
+    check_env_specs(_short_ant(num_envs=3))
+    go1 = EnvPoolEnv("Go1JoystickFlatTerrain-v1", num_envs=2, observation_keys=["state"])
+    check_env_specs(go1)
+    assert go1.observation_spec["observation"].shape == (2, 48)
+    assert go1.observation_spec["privileged_state"].shape == (2, 123)
+    both = EnvPoolEnv("Go1JoystickFlatTerrain-v1", num_envs=2)  # default: all parts concatenated
+    assert both.observation_spec["observation"].shape == (2, 48 + 123)
+
+
+def test_collector_batch_has_no_autoreset_transitions():
+    env = _short_ant()
+    batch = _collect(env, frames=8 * 100)  # [N=8, T=100]
+    nxt = batch["next"]
+    # every transition's reward is the sum of the env's reported terms
+    terms = sum(nxt["info", key] for key in ANT_TERMS)
+    torch.testing.assert_close(nxt["reward"].squeeze(-1), terms, atol=1e-4, rtol=0)
+    # EnvPool's autoreset step reports elapsed_step 0 (and reward 0): it must never be a transition
+    elapsed_before, elapsed_after = batch["info", "elapsed_step"], nxt["info", "elapsed_step"]
+    assert (elapsed_after >= 1).all()
+    assert (elapsed_after == elapsed_before + 1).all()
+    # episode boundaries follow elapsed_step: truncation exactly at MAX_STEPS, a fresh episode after done
+    done = nxt["done"].squeeze(-1)
+    truncated = nxt["truncated"].squeeze(-1)
+    assert torch.equal(truncated, (elapsed_after == MAX_STEPS) & ~nxt["terminated"].squeeze(-1))
+    assert done.any() and nxt["terminated"].any() and truncated.any()
+    starts_after_done = elapsed_before[:, 1:][done[:, :-1]]
+    assert (starts_after_done == 0).all()
+
+
+def test_rollout_without_break_matches_collector_semantics():
+    torch.manual_seed(1)
+    rollout = _short_ant(num_envs=4).rollout(90, break_when_any_done=False)
+    assert (rollout["next", "info", "elapsed_step"] == rollout["info", "elapsed_step"] + 1).all()
+
+
+def test_stepping_an_ended_env_without_reset_raises():
+    env = EnvPoolEnv("Ant-v5", num_envs=2, seed=0, max_episode_steps=2)
+    td = env.reset()
+    for _ in range(2):
+        td = env.step(env.rand_action(td))["next"].clone()
+    assert td["done"].all()
+    with pytest.raises(RuntimeError, match="not reset"):
+        env.step(env.rand_action(td))
+
+
+def test_same_seed_same_trajectories():
+    def run(seed):
+        torch.manual_seed(0)  # same random actions
+        return _short_ant(num_envs=4, seed=seed).rollout(60, break_when_any_done=False)
+
+    a, b, c = run(3), run(3), run(4)
+    assert torch.equal(a["next", "observation"], b["next", "observation"])
+    assert torch.equal(a["next", "done"], b["next", "done"])
+    assert not torch.equal(a["next", "observation"], c["next", "observation"])
+
+
+def test_set_seed_reproduces_a_fresh_env():
+    env = _short_ant(num_envs=2, seed=0)
+    env.set_seed(5)
+    torch.manual_seed(0)
+    reseeded = env.rollout(10, break_when_any_done=False)
+    torch.manual_seed(0)
+    fresh = _short_ant(num_envs=2, seed=5).rollout(10, break_when_any_done=False)
+    assert torch.equal(reseeded["next", "observation"], fresh["next", "observation"])
+
+
+def test_ant_v5_components_sum_to_native_reward():
+    cfg = load_task_config("ant_v5")
+    env = make_env(cfg, num_envs=4, seed=0)
+    torch.manual_seed(0)
+    rollout = env.rollout(100, break_when_any_done=False)
+    reward = rollout["next", "reward"]
+    parts = torch.stack([reward[c] for c in cfg.components], dim=-1).sum(-1)
+    assert (parts - reward["total"]).abs().max().item() < 1e-4
+    # each component is an actual signal (not a zero placeholder) and has the documented sign
+    assert reward["forward"].abs().max() > 1e-2
+    assert (reward["ctrl"] < 0).all()
+    assert (reward["contact"] <= 0).all()
+    assert np.isclose(reward["survive"].max().item(), 1.0)
