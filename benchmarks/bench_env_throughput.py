@@ -1,0 +1,140 @@
+"""Environment throughput: our batched MuJoCo base against EnvPool on the same physics, plus our tasks.
+
+The parity task loads the ant XML that EnvPool ships for Ant-v5 and does Ant-v5's work: frame skip 5,
+forward / ctrl / contact / survive reward terms, the 105-dim observation (qpos[2:], qvel, clipped
+external contact forces), health-based termination. Both run N envs with the same thread count and
+uniform random actions; the clock covers ``steps`` batched steps after a warm-up.
+
+Run: ``python benchmarks/bench_env_throughput.py --num-envs 64 --steps 500 --threads 2``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import mujoco
+import numpy as np
+import torch
+
+from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv
+
+
+def envpool_ant_xml() -> str:
+    """Path of the ant model that EnvPool's Ant-v5 loads (from the ``envpool_assets`` package)."""
+    from envpool.registration import asset_base_path
+
+    return os.path.join(asset_base_path("envpool_assets", "mujoco/assets_gym"), "mujoco/assets_gym/ant.xml")
+
+
+class AntV5Parity(BatchedMujocoEnv):
+    """Gymnasium/EnvPool Ant-v5 on the batched base: same XML, frame skip, terms and observation.
+
+    Terms [N]: forward = Δx_torso / dt, ctrl = −0.5·Σa², contact = −5e-4·Σ clip(cfrc_ext[1:], −1, 1)²,
+    survive = 1 while 0.2 ≤ z ≤ 1.0.
+    """
+
+    reward_term_names = ("forward", "ctrl", "contact", "survive")
+    state_fields = ("xpos", "cfrc_ext")
+
+    def __init__(self, num_envs: int, num_threads: int | None = None, seed: int = 0):
+        model = mujoco.MjModel.from_xml_path(envpool_ant_xml())
+        self.torso = model.body("torso").id
+        super().__init__(model, num_envs, decimation=5, max_episode_steps=1000, num_threads=num_threads, seed=seed)
+
+    def init_buffers(self):
+        self.prev_x = torch.zeros(self.num_envs, dtype=torch.float64)
+
+    def reset_state(self, env_ids, rng):
+        n = len(env_ids)
+        qpos = self.model.qpos0 + rng.uniform(-0.1, 0.1, (n, self.model.nq))  # gymnasium reset noise
+        qvel = 0.1 * rng.standard_normal((n, self.model.nv))
+        return qpos, qvel
+
+    def on_reset(self, env_ids):
+        self.prev_x[env_ids] = self.state_t["xpos"][env_ids, self.torso, 0]
+
+    def after_physics_step(self):
+        x = self.state_t["xpos"][:, self.torso, 0]
+        self.x_velocity = (x - self.prev_x) / self.control_dt  # v_x = Δx / dt
+        self.prev_x = x.clone()
+
+    def _contact_forces(self):
+        return self.state_t["cfrc_ext"][:, 1:].clamp(-1.0, 1.0)  # excludes the world body
+
+    def observation(self):
+        return torch.cat([self.qpos[:, 2:], self.qvel, self._contact_forces().flatten(1)], -1)
+
+    def reward_terms(self):
+        z = self.qpos[:, 2]
+        return {
+            "forward": getattr(self, "x_velocity", torch.zeros(self.num_envs)),
+            "ctrl": -0.5 * self.action.square().sum(-1),  # −0.5·Σa²
+            "contact": -5e-4 * self._contact_forces().square().sum((-1, -2)),  # −5e-4·Σ f²
+            "survive": ((z >= 0.2) & (z <= 1.0)).double(),
+        }
+
+    def terminated(self):
+        z = self.qpos[:, 2]
+        return (z < 0.2) | (z > 1.0)
+
+
+def time_torchrl_env(env, steps: int, warmup: int = 20) -> float:
+    """Batched steps per second × N of ``env`` under random actions, with TorchRL partial resets."""
+    td = env.reset()
+    n = env.batch_size[0]
+    generator = torch.Generator().manual_seed(0)
+    actions = torch.rand(steps + warmup, n, env.action_spec.shape[-1], generator=generator) * 2 - 1
+    for t in range(steps + warmup):
+        if t == warmup:
+            start = time.perf_counter()
+        td.set("action", actions[t])
+        _, td = env.step_and_maybe_reset(td)
+    return steps * n / (time.perf_counter() - start)
+
+
+def time_envpool(num_envs: int, threads: int, steps: int, warmup: int = 20) -> float:
+    import envpool
+
+    env = envpool.make(
+        "Ant-v5", env_type="gymnasium", num_envs=num_envs, batch_size=num_envs, num_threads=threads, seed=0
+    )
+    env.reset()
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps + warmup, num_envs, 8)).astype(np.float32)
+    for t in range(steps + warmup):
+        if t == warmup:
+            start = time.perf_counter()
+        env.step(actions[t])
+    return steps * num_envs / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--num-envs", type=int, default=64)
+    parser.add_argument("--steps", type=int, default=500, help="batched steps timed per env family")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--tasks", nargs="*", default=["ant", "quadcopter", "cassie"])
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    n, threads = args.num_envs, args.threads
+    print(f"N={n} threads={threads} steps={args.steps} (env steps/s = batched steps/s × N)")
+    ours = time_torchrl_env(AntV5Parity(n, num_threads=threads), args.steps)
+    pool = time_envpool(n, threads, args.steps)
+    print(f"parity Ant-v5  ours (BatchedMujocoEnv) {ours:9.0f} steps/s")
+    print(f"parity Ant-v5  EnvPool 1.2.5           {pool:9.0f} steps/s")
+    print(f"ratio ours / EnvPool                   {ours / pool:9.2f}x")
+    from torchrl_ahrs.envs.registry import _BUILDERS, get_builder, load_task_config
+
+    for task in args.tasks:
+        if task not in _BUILDERS:
+            print(f"task {task:12s} not registered")
+            continue
+        cfg = load_task_config(task, [f"+num_threads={threads}"] if False else [])
+        env = get_builder(task)(cfg, n, 0, "cpu")
+        print(f"task {task:12s} (with RewardComponents)  {time_torchrl_env(env, args.steps):9.0f} steps/s")
+
+
+if __name__ == "__main__":
+    main()
