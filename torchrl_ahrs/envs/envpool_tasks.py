@@ -71,9 +71,9 @@ def make_ant_v5(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: s
     """EnvPool Ant-v5; components forward, ctrl, contact, survive sum to the native reward.
 
     Example:
-        >>> from torchrl_ahrs.envs import load_task_config
-        >>> env = make_ant_v5(load_task_config("ant_v5"), num_envs=2, seed=0, device="cpu")  # doctest: +SKIP
-        >>> sorted(env.rollout(2)["next", "reward"].keys())  # doctest: +SKIP
+        >>> from torchrl_ahrs.envs.registry import load_task_config
+        >>> env = make_ant_v5(load_task_config("ant_v5"), num_envs=2, seed=0, device="cpu")
+        >>> sorted(env.rollout(2)["next", "reward"].keys())
         ['contact', 'ctrl', 'forward', 'survive', 'total']
     """
     return make_info_terms_task(task_cfg, num_envs, seed, device)
