@@ -103,3 +103,146 @@ def test_base_threads_do_not_change_results():
         results.append(td["observation"])
     torch.testing.assert_close(results[0], results[1], rtol=0, atol=0)
     torch.testing.assert_close(results[0], results[2], rtol=0, atol=0)
+
+
+# ---------------------------------------------------------------------------------------------- ant
+from torchrl_ahrs.envs.ant import AntEnv  # noqa: E402
+from torchrl_ahrs.envs.quadcopter import QuadcopterEnv  # noqa: E402
+from torchrl_ahrs.envs.registry import load_task_config, make_env  # noqa: E402
+
+COS45 = float(np.cos(np.pi / 4))
+
+
+def set_state(env, qpos_rows, qvel_rows=None):
+    """Writes hand-made states into the stacked arrays that the hooks read."""
+    env.state["qpos"][:] = np.asarray(qpos_rows)
+    env.state["qvel"][:] = 0.0 if qvel_rows is None else np.asarray(qvel_rows)
+
+
+def ant_qpos(x, z, quat, joints):
+    return [x, 0.0, z, *quat, *joints]
+
+
+def test_ant_reward_terms_match_hand_derived_values():
+    env = AntEnv(num_envs=4, num_threads=1)
+    mid = [0.0, np.radians(50)] * 4  # hips centred, ankles mid-range: nothing at a limit
+    limits = [np.radians(30), np.radians(70)] + [0.0, np.radians(30)] * 3  # fl hip+ankle at upper; others lower
+    upright, yaw45 = [1, 0, 0, 0], [np.cos(np.pi / 8), 0, 0, np.sin(np.pi / 8)]  # half-angle quaternion
+    tilt60 = [np.cos(np.pi / 6), np.sin(np.pi / 6), 0, 0]  # 60° about x: up_z = cos 60° = 0.5
+    start = [ant_qpos(0.0, 0.5, upright, mid)] * 4
+    set_state(env, start)
+    env.on_reset(np.arange(4))  # potentials at x = 0
+    moved = [
+        ant_qpos(0.1, 0.5, upright, mid),
+        ant_qpos(0.0, 0.5, yaw45, limits),
+        ant_qpos(0.0, 0.5, tilt60, mid),
+        ant_qpos(0.0, 0.2, upright, mid),  # fallen: below 0.31
+    ]
+    qvel = np.zeros((4, 14))
+    qvel[0, 6:] = 2.0
+    set_state(env, moved, qvel)
+    env.action = torch.tensor([[1.0] * 8, [0.5] * 8, [0.0] * 8, [1.0] * 8])
+    env.after_physics_step()
+    terms = {k: v.tolist() for k, v in env.reward_terms().items()}
+    dt = 2 * 0.0083333
+    expected = {
+        # Δ(−‖target − xy‖)/dt for a 0.1 m step straight at the far target
+        "progress": [0.1 / dt, 0.0, 0.0, 0.0],
+        "alive": [0.5, 0.5, 0.5, 0.0],
+        "up": [0.1, 0.1, 0.0, 0.0],
+        # facing: 0.5; yaw 45°: 0.5·cos45/0.8; tilt about x keeps the x axis on the target
+        "heading": [0.5, 0.5 * COS45 / 0.8, 0.5, 0.0],
+        "actions_cost": [-0.005 * 8, -0.005 * 8 * 0.25, 0.0, 0.0],
+        "energy": [-0.05 * 8 * 1.0 * 0.2 * 2.0, 0.0, 0.0, 0.0],
+        "joints_at_limit": [0.0, -0.2, 0.0, 0.0],  # two joints at their upper limit; lower limits don't count
+        "death": [0.0, 0.0, 0.0, -2.0],
+    }
+    for name, values in expected.items():
+        assert terms[name] == pytest.approx(values, abs=1e-4), name
+    assert env.terminated().tolist() == [False, False, False, True]
+
+
+def test_ant_components_sum_to_total_and_death_replaces_it():
+    cfg = load_task_config("ant")
+    env = make_env(cfg, num_envs=4, seed=1)
+    rollout = env.rollout(150, break_when_any_done=False)
+    reward = rollout["next", "reward"]
+    total = sum(reward[c] for c in cfg.components)
+    torch.testing.assert_close(total, reward["total"], atol=1e-5, rtol=0)
+    died = reward["death"] < 0
+    assert torch.all(reward["total"][died] == -2.0)
+    assert torch.equal(died, rollout["next", "terminated"])
+
+
+def test_ant_partial_reset_leaves_other_simulations_untouched():
+    env = AntEnv(num_envs=3, num_threads=2)
+    td = env.reset()
+    for _ in range(5):
+        _, td = env.step_and_maybe_reset(td.set("action", torch.rand(3, 8) * 2 - 1))
+    kept = [d.qpos.copy() for d in env.datas], [d.qvel.copy() for d in env.datas]
+    td.set("_reset", torch.tensor([[False], [False], [True]]))
+    env.reset(td)
+    for i in (0, 1):
+        np.testing.assert_array_equal(env.datas[i].qpos, kept[0][i])
+        np.testing.assert_array_equal(env.datas[i].qvel, kept[1][i])
+    assert not np.array_equal(env.datas[2].qpos, kept[0][2])
+    assert env.episode_steps.tolist() == [5, 5, 0]
+
+
+@pytest.mark.parametrize("task", ["ant", "quadcopter"])
+def test_same_seed_same_trajectory(task):
+    cfg = load_task_config(task)
+    actions = torch.rand(40, 3, 8 if task == "ant" else 4, generator=torch.Generator().manual_seed(0)) * 2 - 1
+
+    def run(seed):
+        env = make_env(cfg, num_envs=3, seed=seed)
+        td, observations = env.reset(), []
+        for a in actions:
+            out, td = env.step_and_maybe_reset(td.set("action", a))
+            observations.append(out["next", "observation"])
+        return torch.stack(observations)
+
+    first = run(7)
+    torch.testing.assert_close(first, run(7), rtol=0, atol=0)
+    assert not torch.equal(first, run(8))
+
+
+@pytest.mark.parametrize("task", ["ant", "quadcopter"])
+def test_task_specs_and_reward_leaves(task):
+    cfg = load_task_config(task)
+    env = make_env(cfg, num_envs=3)
+    check_env_specs(env)
+    leaves = env.rollout(3)["next", "reward"]
+    assert sorted(leaves.keys()) == sorted([*cfg.components, "total"])
+
+
+# ---------------------------------------------------------------------------------------------- quadcopter
+def test_quadcopter_reward_terms_match_hand_derived_values():
+    env = QuadcopterEnv(num_envs=3, num_threads=1)
+    roll90 = [COS45, COS45, 0, 0]  # 90° about x: body y → world z, body z → world −y
+    qpos = [[0, 0, 1, 1, 0, 0, 0], [0, 0, 2, *roll90], [0.5, 0, 1, 1, 0, 0, 0]]
+    qvel = [[0] * 6, [0, 0, 0, 0, 2, 0], [0, 0, 0, 0, 0, 1]]  # angular velocity is in the body frame
+    set_state(env, qpos, qvel)
+    terms = {k: v.tolist() for k, v in env.reward_terms().items()}
+    # env 0: at target, level, still → 1, 1, 1.
+    # env 1: d = 1 → pos = 1/2; up_z = 0 → tilt 1 → up = 1/2; body ω_y = 2 → world ω_z = 2 → spin = 1/5.
+    # env 2: d = 0.5 → pos = 1/1.25 = 0.8; level → up = 1; ω_z = 1 → spin = 1/2.
+    assert terms["pos"] == pytest.approx([1.0, 0.5, 0.8])
+    assert terms["pos_up"] == pytest.approx([1.0, 0.25, 0.8])
+    assert terms["pos_spin"] == pytest.approx([1.0, 0.1, 0.4])
+    set_state(env, [[0, 0, 4.5, 1, 0, 0, 0], [0, 0, 0.25, 1, 0, 0, 0], [2.9, 0, 1, 1, 0, 0, 0]])
+    assert env.terminated().tolist() == [True, True, False]  # d = 3.5 > 3; z < 0.3; d = 2.9
+
+
+def test_quadcopter_hover_thrust_holds_altitude():
+    # total mass 0.7 kg and 4 N per rotor at ctrl 1: hover at ctrl = 0.7·9.81/16, i.e. action = 2·ctrl − 1
+    env = QuadcopterEnv(num_envs=2, num_threads=1)
+    td = env.reset()
+    set_state(env, [[0, 0, 1, 1, 0, 0, 0]] * 2)
+    for i, data in enumerate(env.datas):
+        data.qpos[:], data.qvel[:] = env.state["qpos"][i], 0.0
+    hover = 2 * (0.7 * 9.81 / 16) - 1
+    for _ in range(50):
+        td = env.step(td.set("action", torch.full((2, 4), hover)))["next"]
+    assert env.qpos[:, 2].tolist() == pytest.approx([1.0, 1.0], abs=1e-6)
+    assert td["info", "reward_pos"].tolist() == pytest.approx([1.0, 1.0], abs=1e-6)
