@@ -7,6 +7,7 @@ the task and ``("next", "reward", "total")`` = EnvPool's native reward.
 Tasks whose EnvPool env reports its reward terms in ``info`` declare the mapping in their YAML::
 
     terms: {forward: reward_forward, ctrl: reward_ctrl, ...}   # component -> EnvPool info entry
+                                                               # (default: "reward_" + component)
     term_scale: 1.0                                            # factor on every term (e.g. ctrl_dt)
 """
 
@@ -30,7 +31,8 @@ def _make_kwargs(task_cfg: Mapping[str, Any]) -> dict[str, Any]:
 def make_info_terms_task(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: str) -> EnvBase:
     """EnvPool task whose components are ``info`` reward terms times ``term_scale``.
 
-    Reads ``env_id``, ``components``, ``terms`` (component → info entry), optional ``term_scale``
+    Reads ``env_id``, ``components``, ``terms`` (component → info entry, default ``"reward_<c>"``),
+    optional ``term_scale``
     (default 1), ``observation_keys`` (dict observation parts forming ``"observation"``),
     ``num_threads`` and ``max_episode_steps`` from ``task_cfg``.
 
@@ -42,10 +44,7 @@ def make_info_terms_task(task_cfg: Mapping[str, Any], num_envs: int, seed: int, 
         torch.Size([2, 3, 1])
     """
     components = list(task_cfg["components"])
-    terms = dict(task_cfg["terms"])
-    missing = [c for c in components if c not in terms]
-    if missing:
-        raise ValueError(f"task {task_cfg.get('name')!r}: no info term for components {missing}")
+    terms = {c: f"reward_{c}" for c in components} | dict(task_cfg.get("terms") or {})
     observation_keys = task_cfg.get("observation_keys")
     base = EnvPoolEnv(
         task_cfg["env_id"],

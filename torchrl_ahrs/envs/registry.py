@@ -21,6 +21,9 @@ TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
 # name -> "module:function"; imported on first use so that optional backends load only when asked.
 _BUILDERS: dict[str, str] = {
     "ant_v5": "torchrl_ahrs.envs.envpool_tasks:make_ant_v5",
+    "go1_terrain": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
+    "leap_cube": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
+    "humanoid": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
     "ant": "torchrl_ahrs.envs.ant:make_ant",
     "quadcopter": "torchrl_ahrs.envs.quadcopter:make_quadcopter",
     "point_reach": "torchrl_ahrs.envs.point_reach:make_point_reach",
