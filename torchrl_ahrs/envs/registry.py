@@ -26,6 +26,7 @@ _BUILDERS: dict[str, str] = {
     "humanoid": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
     "ant": "torchrl_ahrs.envs.ant:make_ant",
     "quadcopter": "torchrl_ahrs.envs.quadcopter:make_quadcopter",
+    "cassie": "torchrl_ahrs.envs.cassie:make_cassie",
     "point_reach": "torchrl_ahrs.envs.point_reach:make_point_reach",
 }
 
