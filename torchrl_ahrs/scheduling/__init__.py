@@ -1,0 +1,146 @@
+"""AHRS scheduling: rule repositories, return statistics, selectors and the RuleScheduler hook.
+
+``build_scheduler(cfg, estimator, components, run_dir, logger)`` turns the Hydra config into a
+ready :class:`RuleScheduler`:
+
+* ``cfg.method.selector``: ``constant`` | ``fixed`` (with ``cfg.method.rule``) | ``random`` |
+  ``bandit`` | ``llm`` | ``direct``. ``llm`` and ``direct`` need ``cfg.llm.model``; with ``llm=offline``
+  (no model) the ``bandit`` selector stands in and the run says so at start and in every decision.
+* ``cfg.scheduler``: ``interval``, ``history_length``, ``base_weight``, ``rules`` (a repository file,
+  null = the shipped one), ``blocking``.
+* ``cfg.method.initial_weights``: weights before the first decision (null = ``base_weight``).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from torchrl_ahrs.scheduling.rules import Rule, RuleRepository, load_repository, normalise_scores
+from torchrl_ahrs.scheduling.scheduler import RuleScheduler
+from torchrl_ahrs.scheduling.selectors import (
+    BanditSelector,
+    ConstantSelector,
+    Decision,
+    DecisionContext,
+    FixedSelector,
+    RandomSelector,
+    Selector,
+)
+from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
+
+__all__ = [
+    "BanditSelector",
+    "ConstantSelector",
+    "Decision",
+    "DecisionContext",
+    "FixedSelector",
+    "RandomSelector",
+    "ReturnStatistics",
+    "Rule",
+    "RuleRepository",
+    "RuleScheduler",
+    "Selector",
+    "Summary",
+    "build_scheduler",
+    "build_selector",
+    "load_repository",
+    "normalise_scores",
+]
+
+log = logging.getLogger(__name__)
+LLM_SELECTORS = ("llm", "direct")
+
+
+def _select(cfg: Any, key: str, default: Any = None) -> Any:
+    value = OmegaConf.select(cfg, key, default=default) if OmegaConf.is_config(cfg) else default
+    return default if value is None else value
+
+
+def llm_is_offline(cfg: Any) -> bool:
+    """True when no LLM is configured (``llm=offline`` or no ``llm`` section / no ``llm.model``)."""
+    return _select(cfg, "llm.name", "offline") == "offline" or not _select(cfg, "llm.model")
+
+
+def build_selector(
+    cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
+) -> tuple[Selector, str]:
+    """The selector named by ``cfg.method.selector`` and a note to attach to every decision ('' if none)."""
+    name = _select(cfg, "method.selector", "constant")
+    seed = int(_select(cfg, "seed", 0))
+    note = ""
+    if name in LLM_SELECTORS and llm_is_offline(cfg):
+        note = f"llm=offline: the bandit selector stands in for the '{name}' selector (no LLM is called)"
+        name = "bandit"
+    if name == "constant":
+        return ConstantSelector(), note
+    if name == "fixed":
+        return FixedSelector(repository, _select(cfg, "method.rule", "hdpg")), note
+    if name == "random":
+        return RandomSelector(repository, seed=seed), note
+    if name == "bandit":
+        return (
+            BanditSelector(
+                repository,
+                seed=seed,
+                discount=float(_select(cfg, "llm.bandit.discount", 0.9)),
+                exploration=float(_select(cfg, "llm.bandit.exploration", 1.0)),
+            ),
+            note,
+        )
+    if name in LLM_SELECTORS:
+        from torchrl_ahrs.scheduling.llm_selectors import build_llm_selector
+
+        return build_llm_selector(name, cfg, repository, components, run_dir), note
+    raise ValueError(f"unknown selector {name!r}; choose constant, fixed, random, bandit, llm or direct")
+
+
+def build_scheduler(
+    cfg: Any, estimator: Any, components: list[str], run_dir: Path, logger: Any = None
+) -> RuleScheduler:
+    """A :class:`RuleScheduler` configured from the whole Hydra config.
+
+    Example:
+        >>> import torch
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"seed": 0, "method": {"selector": "fixed", "rule": "hdpg", "initial_weights": None},
+        ...                         "scheduler": {"interval": 2, "history_length": 5, "base_weight": 0.5}})
+        >>> class Estimator:
+        ...     weights = torch.ones(2)
+        ...     def set_weights(self, w): self.weights = w.clone()
+        >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"], run_dir=None)
+        >>> sched.selector.name, sched.interval, sched.weights.tolist()
+        ('fixed', 2, [0.5, 0.5])
+    """
+    rules_path = _select(cfg, "scheduler.rules")
+    repository = load_repository(rules_path, validate=rules_path is not None)
+    run_dir = Path(run_dir) if run_dir is not None else None
+    selector, note = build_selector(cfg, repository, list(components), run_dir)
+    initial = _select(cfg, "method.initial_weights")
+    scheduler = RuleScheduler(
+        estimator,
+        list(components),
+        repository,
+        selector,
+        interval=int(_select(cfg, "scheduler.interval", 100)),
+        base_weight=float(_select(cfg, "scheduler.base_weight", 0.5)),
+        history_length=int(_select(cfg, "scheduler.history_length", 5)),
+        initial_weights=list(initial) if initial is not None else None,
+        blocking=bool(_select(cfg, "scheduler.blocking", True)),
+        logger=logger,
+        run_dir=run_dir,
+        note=note,
+    )
+    log.info(
+        "RuleScheduler: selector=%s, %d rules from %s (digest %s), interval=%d, components=%s",
+        selector.name,
+        len(repository),
+        repository.source_path,
+        repository.digest(),
+        scheduler.interval,
+        list(components),
+    )
+    return scheduler

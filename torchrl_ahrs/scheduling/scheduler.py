@@ -1,0 +1,308 @@
+"""The RuleScheduler trainer hook: statistics → selector → rule → weights in the advantage estimator.
+
+Registered on a TorchRL :class:`~torchrl.trainers.Trainer` it runs at two places:
+
+* ``pre_steps_log`` (every collected batch): the returns of episodes that finished in the batch,
+  ``[M, K]``, go into :class:`~torchrl_ahrs.scheduling.stats.ReturnStatistics`; the current weights
+  and rule id are returned for the trainer's logger.
+* ``post_steps`` (every training iteration): every ``interval`` iterations a decision is made:
+  ``w = base_weight + normalise(rule(mean [K], var [K], history [L, K], previous_weights [K]))`` is
+  installed with ``estimator.set_weights(w)``.
+
+Guards (each one keeps the current weights and says why in the log):
+  * no episode finished since the last decision;
+  * non-finite statistics (non-finite returns are also dropped row by row when they arrive);
+  * the selector raised, or answered nothing usable;
+  * the rule raised or returned a wrong shape or non-finite scores.
+
+With ``blocking=False`` the selector runs in a background thread; its decision is applied at the
+first iteration after it arrives, computed on the statistics it was asked about. A pending request
+is not checkpointed.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Protocol
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.trainers import TrainerHookBase
+
+from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
+from torchrl_ahrs.scheduling.rules import RuleRepository, normalise_direct
+from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
+from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
+
+log = logging.getLogger(__name__)
+DECISIONS_FILE = "scheduler_decisions.jsonl"
+
+
+class WeightedEstimator(Protocol):
+    """What the scheduler needs from the advantage estimator (``WeightedMultiGAE``)."""
+
+    weights: torch.Tensor
+
+    def set_weights(self, weights: torch.Tensor) -> None: ...
+
+
+class RuleScheduler(TrainerHookBase):
+    """Picks weight rules during training and installs the weights in the advantage estimator.
+
+    Args:
+        estimator: object with ``weights [K]`` and ``set_weights(weights [K])``.
+        components: the K reward components, in the estimator's order.
+        repository: the rules a selector may pick.
+        selector: decides at every decision point (constant, fixed, random, bandit, llm, direct).
+        interval: training iterations between decisions.
+        base_weight: ``w_k = base_weight + n_k``.
+        history_length: L, earlier summaries shown to rules and selectors.
+        initial_weights: weights ``[K]`` installed at construction (default ``base_weight`` each).
+        blocking: ``False`` runs the selector in a background thread.
+        logger: optional TorchRL logger (``log_scalar``) for decision scalars.
+        run_dir: where ``scheduler_decisions.jsonl`` is written (one line per decision point).
+        note: text attached to every decision log (e.g. that the bandit stands in for an LLM).
+
+    Example:
+        >>> import torch
+        >>> from torchrl_ahrs.scheduling.rules import load_repository
+        >>> from torchrl_ahrs.scheduling.selectors import FixedSelector
+        >>> class Estimator:
+        ...     weights = torch.ones(2)
+        ...     def set_weights(self, w): self.weights = w.clone()
+        >>> repo, est = load_repository(), Estimator()
+        >>> sched = RuleScheduler(est, ["a", "b"], repo, FixedSelector(repo, "mean_returns_only"), interval=1)
+        >>> est.weights.tolist()
+        [0.5, 0.5]
+        >>> sched.statistics.add(torch.tensor([[1.0, 3.0]]))
+        1
+        >>> sched.step()
+        >>> est.weights.tolist()
+        [0.5, 1.5]
+    """
+
+    def __init__(
+        self,
+        estimator: WeightedEstimator,
+        components: list[str],
+        repository: RuleRepository,
+        selector: Selector,
+        interval: int = 100,
+        base_weight: float = 0.5,
+        history_length: int = 5,
+        initial_weights: list[float] | torch.Tensor | None = None,
+        blocking: bool = True,
+        logger: Any = None,
+        run_dir: str | Path | None = None,
+        note: str = "",
+    ):
+        if interval < 1:
+            raise ValueError(f"interval must be at least 1, got {interval}")
+        self.estimator = estimator
+        self.components = list(components)
+        self.repository = repository
+        self.selector = selector
+        self.interval = int(interval)
+        self.base_weight = float(base_weight)
+        self.blocking = blocking
+        self.logger = logger
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.note = note
+        self.statistics = ReturnStatistics(len(self.components), history_length)
+        self.iteration = 0
+        self.frames = 0
+        self.decision_index = 0
+        self.rule_id: int | None = None
+        if initial_weights is None:
+            initial = torch.full((len(self.components),), self.base_weight)
+        else:
+            initial = torch.as_tensor(initial_weights, dtype=torch.float32).reshape(-1)
+        if initial.shape != (len(self.components),) or not torch.isfinite(initial).all():
+            raise ValueError(f"initial_weights must be {len(self.components)} finite numbers, got {initial.tolist()}")
+        self.weights = initial.float()
+        self.estimator.set_weights(self.weights.clone())
+        self._executor: ThreadPoolExecutor | None = None
+        self._pending: tuple[Future, DecisionContext] | None = None
+        if note:
+            log.warning("RuleScheduler: %s", note)
+
+    # ---------------------------------------------------------------- trainer hooks
+    def register(self, trainer, name: str = "rule_scheduler") -> None:
+        """Registers ``observe_batch`` at ``pre_steps_log``, ``step`` at ``post_steps``, and the module."""
+        trainer.register_op("pre_steps_log", self.observe_batch)
+        trainer.register_op("post_steps", self.step)
+        trainer.register_op("shutdown", self.close)
+        trainer.register_module(name, self)
+
+    def observe_batch(self, batch: TensorDictBase) -> dict[str, float]:
+        """Feeds the batch's finished episodes to the statistics; returns scalars for the trainer's log."""
+        self.frames += batch.numel()
+        returns = finished_episode_returns(batch, self.components)
+        totals = None
+        if TOTAL not in self.components and ("next", "episode_reward", TOTAL) in batch.keys(True, True):
+            totals = finished_episode_returns(batch, [TOTAL])
+        elif TOTAL in self.components:
+            totals = returns[:, self.components.index(TOTAL)]
+        self.statistics.add(returns, totals)
+        return self.scalars()
+
+    def scalars(self) -> dict[str, float]:
+        """``scheduler/weight_<c>`` for every component and ``scheduler/rule`` (0 = no rule yet)."""
+        values = {f"scheduler/weight_{c}": float(w) for c, w in zip(self.components, self.weights, strict=True)}
+        values["scheduler/rule"] = float(self.rule_id or 0)
+        return values
+
+    def step(self) -> None:
+        """Counts one training iteration; decides every ``interval`` iterations; applies late answers."""
+        self.iteration += 1
+        self._collect_pending()
+        if self.iteration % self.interval == 0:
+            self.decide()
+
+    # ---------------------------------------------------------------- decisions
+    def decide(self) -> None:
+        """One decision point: summarise the period, ask the selector, install the weights."""
+        if self._pending is not None:
+            self._record(None, "previous decision still pending; weights kept, statistics keep accumulating")
+            return
+        summary = self.statistics.summarise()
+        if summary.count == 0:
+            self._record(None, "no finished episodes since the last decision; weights kept")
+            return
+        summary.weights, summary.rule_id = self.weights.tolist(), self.rule_id
+        if not all(math.isfinite(x) for x in [*summary.mean, *summary.var]):
+            self._record(None, f"non-finite statistics {summary.mean} / {summary.var}; weights kept", summary)
+            return
+        mean = torch.tensor(summary.mean, dtype=torch.float32)
+        context = DecisionContext(
+            components=self.components,
+            mean=mean,
+            var=torch.tensor(summary.var, dtype=torch.float32),
+            history=self.statistics.history_tensor(mean),
+            previous_weights=self.weights.clone(),
+            summary=summary,
+            past=list(self.statistics.history),
+            previous_rule_id=self.rule_id,
+            iteration=self.iteration,
+            decision_index=self.decision_index,
+        )
+        self.statistics.push(summary)
+        if self.blocking:
+            self._apply(self._run_selector(context), context)
+        else:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rule-selector")
+            self._pending = (self._executor.submit(self._run_selector, context), context)
+            self._record(None, "decision requested in the background; weights kept until it arrives", summary)
+
+    def _run_selector(self, context: DecisionContext) -> Decision:
+        try:
+            return self.selector.select(context)
+        except Exception as error:  # noqa: BLE001 (a selector failure must not stop training)
+            log.exception("selector %s failed", self.selector.name)
+            return Decision(self.selector.name, note=f"selector failed: {type(error).__name__}: {error}")
+
+    def _collect_pending(self) -> None:
+        if self._pending is not None and self._pending[0].done():
+            future, context = self._pending
+            self._pending = None
+            self._apply(future.result(), context)
+
+    def _apply(self, decision: Decision, context: DecisionContext) -> None:
+        if decision.keeps_weights:
+            self._record(decision, decision.note or "selector kept the weights", context.summary)
+            return
+        try:
+            if decision.weights is not None:
+                weights = self.base_weight + normalise_direct(decision.weights)  # w = base + x / sum x
+                rule_id = None
+            else:
+                rule = self.repository[decision.rule_id]
+                weights = rule.weights(context.mean, context.var, context.history, self.weights, self.base_weight)
+                rule_id = rule.id
+        except Exception as error:  # noqa: BLE001 (a rule failure must not stop training)
+            self._record(decision, f"{decision.note} rule failed ({type(error).__name__}: {error}); weights kept")
+            return
+        if weights.shape != self.weights.shape or not torch.isfinite(weights).all():
+            self._record(decision, f"invalid weights {weights.tolist()}; weights kept")
+            return
+        self.weights, self.rule_id = weights.float(), rule_id
+        self.estimator.set_weights(self.weights.clone())
+        self.decision_index += 1
+        self._record(decision, decision.note, context.summary, applied=True)
+
+    def _record(self, decision: Decision | None, message: str, summary: Summary | None = None, applied: bool = False):
+        """Logs one decision point to python logging, the TorchRL logger and the decisions file."""
+        selector = decision.selector if decision is not None else self.selector.name
+        rule = self.repository[self.rule_id] if (applied and self.rule_id is not None) else None
+        what = f"rule {rule.id} ({rule.name})" if rule else ("direct weights" if applied else "no change")
+        weights_text = ", ".join(f"{c}={w:.3f}" for c, w in zip(self.components, self.weights.tolist(), strict=True))
+        suffix = f" [{self.note}]" if self.note else ""
+        log.info(
+            "decision at iteration %d by %s: %s; weights %s; %s%s",
+            self.iteration,
+            selector,
+            what,
+            weights_text,
+            message,
+            suffix,
+        )
+        if self.logger is not None and applied:
+            step = self.frames
+            self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=step)
+            for c, w in zip(self.components, self.weights.tolist(), strict=True):
+                self.logger.log_scalar(f"scheduler/decision_weight_{c}", w, step=step)
+        if self.run_dir is not None:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            entry = {
+                "time": time.time(),
+                "iteration": self.iteration,
+                "frames": self.frames,
+                "selector": selector,
+                "applied": applied,
+                "rule_id": self.rule_id if applied else None,
+                "rule": rule.key if rule else None,
+                "weights": self.weights.tolist(),
+                "episodes": summary.count if summary else None,
+                "mean": summary.mean if summary else None,
+                "var": summary.var if summary else None,
+                "message": message,
+                "note": self.note,
+            }
+            with open(self.run_dir / DECISIONS_FILE, "a") as handle:
+                handle.write(json.dumps(entry) + "\n")
+
+    # ---------------------------------------------------------------- checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "iteration": self.iteration,
+            "frames": self.frames,
+            "decision_index": self.decision_index,
+            "rule_id": self.rule_id,
+            "weights": self.weights.clone(),
+            "statistics": self.statistics.state_dict(),
+            "selector": self.selector.state_dict(),
+        }
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.iteration = int(state_dict["iteration"])
+        self.frames = int(state_dict["frames"])
+        self.decision_index = int(state_dict["decision_index"])
+        self.rule_id = state_dict["rule_id"]
+        self.weights = state_dict["weights"].clone().float()
+        self.estimator.set_weights(self.weights.clone())
+        self.statistics.load_state_dict(state_dict["statistics"])
+        self.selector.load_state_dict(state_dict["selector"])
+
+    def close(self) -> None:
+        """Waits for a pending background decision (applies it) and releases the selector."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+            self._collect_pending()
+            self._executor = None
+        self.selector.close()
