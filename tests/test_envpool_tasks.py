@@ -5,6 +5,8 @@ Oracle: the environment's own reward (EnvPool's ``reward``), never a re-typed fo
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -40,3 +42,32 @@ def test_go1_terrain_components_sum_to_unclipped_native_reward():
     assert (parts < 0).any(), "random actions should give some negative unclipped sums"
     assert rollout["observation"].shape[-1] == 48
     assert rollout["privileged_state"].shape[-1] == 123
+
+
+def test_shadow_hand_terms_against_native_reward():
+    cfg, rollout, reward, parts = _rollout("shadow_hand", steps=30)
+    # the decomposed sum is the training reward
+    torch.testing.assert_close(parts, reward["total"], atol=1e-4, rtol=1e-6)
+    # oracle: gymnasium-robotics' native dense reward is -(10 ||p - p*|| + theta_g) with
+    # theta_g = 2 acos(w) in [0, 2 pi] (signed w: not the shortest angle); Isaac Gym's theta (ours, via rot)
+    # is the shortest one, min(theta_g, 2 pi - theta_g)
+    theta = 1.0 / reward["rot"] - cfg.rot_eps
+    native = rollout["next", "info", "native_reward"].unsqueeze(-1)
+    theta_native = reward["dist"] - native
+    shortest = torch.minimum(theta_native, 2 * math.pi - theta_native)
+    torch.testing.assert_close(theta, shortest, atol=2e-4, rtol=1e-4)
+    assert (theta_native > math.pi).any() and (theta_native < math.pi).any()  # both branches exercised
+    assert (reward["action"] < 0).all()
+    assert rollout["observation"].shape[-1] == 61 + 7
+
+
+def test_quat_angle_known_rotations():
+    from torchrl_ahrs.envs.shadow_hand import quat_angle
+
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0])
+    half_turn_z = torch.tensor([0.0, 0.0, 0.0, 1.0])
+    quarter_turn_x = torch.tensor([math.cos(math.pi / 8), math.sin(math.pi / 8), 0.0, 0.0])  # 45 degrees
+    assert quat_angle(identity, identity).item() == pytest.approx(0.0, abs=1e-6)
+    assert quat_angle(identity, half_turn_z).item() == pytest.approx(math.pi, abs=1e-6)
+    assert quat_angle(quarter_turn_x, identity).item() == pytest.approx(math.pi / 4, abs=1e-6)
+    assert quat_angle(-quarter_turn_x, identity).item() == pytest.approx(math.pi / 4, abs=1e-6)  # q ~ -q

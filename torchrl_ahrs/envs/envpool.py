@@ -62,6 +62,8 @@ class EnvPoolEnv(EnvBase):
             own key. Ignored for ``Box`` spaces.
         info_keys: ``info`` entries to expose under ``"info"``; default every ``reward_*`` term and
             ``elapsed_step``.
+        keep_observation_parts: also keep the parts that form ``"observation"`` under their own names
+            (e.g. a goal that a reward transform reads); a part named ``"observation"`` is not duplicated.
         num_threads: EnvPool worker threads (0 = EnvPool's default).
         **make_kwargs: forwarded to ``envpool.make`` (e.g. ``max_episode_steps``).
 
@@ -80,6 +82,7 @@ class EnvPoolEnv(EnvBase):
         device: str | torch.device = "cpu",
         observation_keys: Sequence[str] | None = None,
         info_keys: Sequence[str] | None = None,
+        keep_observation_parts: bool = False,
         num_threads: int = 0,
         **make_kwargs: Any,
     ):
@@ -102,7 +105,11 @@ class EnvPoolEnv(EnvBase):
             unknown = [k for k in self.policy_observation_keys if k not in parts]
             if unknown:
                 raise KeyError(f"observation_keys {unknown} not in {task_id}'s observation parts {parts}")
-            self.extra_observation_keys = [k for k in parts if k not in self.policy_observation_keys]
+            self.extra_observation_keys = [
+                k
+                for k in parts
+                if k != OBSERVATION and (keep_observation_parts or k not in self.policy_observation_keys)
+            ]
         else:
             self.policy_observation_keys, self.extra_observation_keys = [], []
 

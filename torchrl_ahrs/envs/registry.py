@@ -24,6 +24,7 @@ _BUILDERS: dict[str, str] = {
     "go1_terrain": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
     "leap_cube": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
     "humanoid": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
+    "shadow_hand": "torchrl_ahrs.envs.shadow_hand:make_shadow_hand",
     "ant": "torchrl_ahrs.envs.ant:make_ant",
     "quadcopter": "torchrl_ahrs.envs.quadcopter:make_quadcopter",
     "cassie": "torchrl_ahrs.envs.cassie:make_cassie",
