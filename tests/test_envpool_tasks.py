@@ -71,3 +71,49 @@ def test_quat_angle_known_rotations():
     assert quat_angle(identity, half_turn_z).item() == pytest.approx(math.pi, abs=1e-6)
     assert quat_angle(quarter_turn_x, identity).item() == pytest.approx(math.pi / 4, abs=1e-6)
     assert quat_angle(-quarter_turn_x, identity).item() == pytest.approx(math.pi / 4, abs=1e-6)  # q ~ -q
+
+
+@pytest.mark.parametrize("task, obs_dim", [("dmc_walker_walk", 24), ("dmc_quadruped_run", 78), ("dmc_cheetah_run", 17)])
+def test_dmc_components_sum_exactly_to_native_reward(task, obs_dim):
+    cfg, rollout, reward, parts = _rollout(task, steps=60)
+    torch.testing.assert_close(parts, reward["total"], atol=1e-6, rtol=0)
+    assert rollout["observation"].shape[-1] == obs_dim
+
+
+def test_quadruped_run_terms_are_computed_from_observations_not_the_reward():
+    # both terms come from torso_upright / torso_velocity; the product must still reproduce the native
+    # reward, and move <= 0 <= upright
+    _, _, reward, _ = _rollout("dmc_quadruped_run", steps=60)
+    assert (reward["upright"] >= 0).all() and (reward["move"] <= 1e-7).all()
+    assert reward["move"].abs().max() > 0
+
+
+def test_walker_stand_terms_match_dm_control_when_move_factor_is_zero():
+    # oracle: dm_control's own reward with the walker's COM velocity forced to -100 m/s, so that its move
+    # factor is 0 and r = stand / 6: our observation-based standing + upright must equal r, move ~ 0
+    np = pytest.importorskip("numpy")
+    suite = pytest.importorskip("dm_control.suite")
+    from torchrl_ahrs.envs.dmc_tasks import walker_walk_terms
+
+    env = suite.load("walker", "walk", task_kwargs={"random": 0})
+    env.physics.horizontal_velocity = lambda: -100.0
+    env.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        step = env.step(rng.uniform(-1, 1, 6))
+        obs = step.observation
+        terms = walker_walk_terms(
+            torch.tensor(obs["height"]), torch.tensor(obs["orientations"][0]), torch.tensor(step.reward)
+        )
+        assert abs(terms["move"].item()) < 1e-9
+    # and in EnvPool's walker, the remainder move = 5 stand move / 6 implies a move factor in [0, 1]
+    _, _, reward, _ = _rollout("dmc_walker_walk", steps=60)
+    stand = 6.0 * (reward["standing"] + reward["upright"])
+    move_factor = reward["move"] / (5.0 * stand / 6.0)
+    assert (move_factor > -1e-5).all() and (move_factor < 1 + 1e-5).all()
+
+
+def test_cheetah_split_at_jog_speed():
+    _, _, reward, _ = _rollout("dmc_cheetah_run", steps=60)
+    assert (reward["jog"] <= 0.5 + 1e-7).all() and (reward["sprint"] >= 0).all()
+    assert ((reward["sprint"] > 0) <= (reward["jog"] >= 0.5 - 1e-7)).all()  # sprint only once jog is full
