@@ -121,6 +121,9 @@ class CassieEnv(BatchedMujocoEnv):
         self.init_joint_noise = float(init_joint_noise)
         self.init_base_vel_noise = float(init_base_vel_noise)
         self.default_joint_pos = torch.as_tensor(layout.default_joint_pos, dtype=torch.float64)
+        # torch copies of the layout's indices: indexing a tensor with a tensor skips numpy conversion
+        self._qpos_idx, self._dof_idx = torch.as_tensor(layout.qpos_adr), torch.as_tensor(layout.dof_adr)
+        self._act_idx, self._foot_idx = torch.as_tensor(layout.actuator_ids), torch.as_tensor(layout.foot_touch_adr)
         self.soft_lower, self.soft_upper = lr.soft_joint_limits(
             torch.as_tensor(layout.joint_range, dtype=torch.float64), soft_dof_pos_limit
         )
@@ -185,8 +188,7 @@ class CassieEnv(BatchedMujocoEnv):
         return lin_vel, self.qvel[:, 3:6]  # free joint: ω is already in the body frame
 
     def _dof(self) -> tuple[torch.Tensor, torch.Tensor]:
-        layout = self.layout
-        return self.qpos[:, layout.qpos_adr], self.qvel[:, layout.dof_adr]
+        return self.qpos[:, self._qpos_idx], self.qvel[:, self._dof_idx]
 
     def after_physics_step(self) -> None:
         """Computes this step's reward terms and termination, then rolls the history buffers."""
@@ -194,7 +196,7 @@ class CassieEnv(BatchedMujocoEnv):
         lin_vel, ang_vel = self._base_velocities()
         dof_pos, dof_vel = self._dof()
         sensors = self.state_t["sensordata"]
-        contact = sensors[:, layout.foot_touch_adr] > self.contact_threshold  # [N, 2]
+        contact = sensors[:, self._foot_idx] > self.contact_threshold  # [N, 2]
         pelvis_contact = sensors[:, layout.pelvis_touch_adr] > self.contact_threshold
         self.fallen = pelvis_contact | (self.qpos[:, 2] < self.min_base_height)
         air_reward, self.feet_air_time = lr.feet_air_time(
@@ -205,7 +207,7 @@ class CassieEnv(BatchedMujocoEnv):
             "tracking_lin_vel": lr.tracking_lin_vel(self.commands[:, :2], lin_vel[:, :2], self.tracking_sigma),
             "tracking_ang_vel": lr.tracking_ang_vel(self.commands[:, 2], ang_vel[:, 2], self.tracking_sigma),
             "lin_vel_z": lr.lin_vel_z(lin_vel[:, 2]),
-            "torques": lr.torques(self.state_t["actuator_force"][:, layout.actuator_ids]),
+            "torques": lr.torques(self.state_t["actuator_force"][:, self._act_idx]),
             "dof_acc": lr.dof_acc(dof_vel, self.last_dof_vel, dt),
             "feet_air_time": air_reward,
             "action_rate": lr.action_rate(self.action, self.last_action),
