@@ -357,7 +357,7 @@ def load_functions(source: str, filename: str = "<llm>") -> dict[str, Callable]:
 # Child-process validation
 # ----------------------------------------------------------------------------------------------------
 
-CPU_SECONDS = 5  # CPU time granted to the validation calls (on top of the interpreter's start-up)
+CPU_SECONDS = 2  # CPU time granted to the validation calls (on top of the interpreter's start-up)
 MEMORY_BYTES = 1 << 30  # address space granted on top of what the child uses after importing torch
 WALL_SECONDS = 60.0  # the parent gives up on the child after this long
 

@@ -34,6 +34,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.trainers import TrainerHookBase
 
+from torchrl_ahrs.llm.client import FatalSelectorError
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
 from torchrl_ahrs.scheduling.rules import RuleRepository, normalise_direct
 from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
@@ -203,6 +204,8 @@ class RuleScheduler(TrainerHookBase):
     def _run_selector(self, context: DecisionContext) -> Decision:
         try:
             return self.selector.select(context)
+        except FatalSelectorError:
+            raise  # e.g. a replay miss: continuing would silently diverge from the recorded run
         except Exception as error:  # noqa: BLE001 (a selector failure must not stop training)
             log.exception("selector %s failed", self.selector.name)
             return Decision(self.selector.name, note=f"selector failed: {type(error).__name__}: {error}")

@@ -1,0 +1,270 @@
+"""One LLM client over litellm: timeouts, retries with backoff, a JSONL call log, a disk cache, replay.
+
+Every :meth:`LLMClient.complete` call writes one JSON line to ``<run_dir>/llm_calls.jsonl``:
+time, purpose, model, prompt hash, prompt (the messages), response, parsed decision, parse error,
+latency, tokens, cost, attempts, error, and whether the answer came from the cache or a replay. API
+keys are read from the environment variable named by ``llm.api_key_env`` only, are never written,
+and are masked in error texts.
+
+* **Cache** (``llm.cache_dir``): answers keyed by model + messages; a rerun with the same prompts is free.
+* **Replay** (``llm=replay llm.replay_from=<run dir>``): answers come only from that run's log, matched
+  by prompt hash in the order they were recorded; a miss raises :class:`ReplayMiss`, which stops the
+  run (a replay that silently diverged would be worse).
+
+``LITELLM_LOCAL_MODEL_COST_MAP=True`` is set before litellm is imported (else it downloads a price
+map at import); litellm itself is imported on first use so runs without an LLM never load it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import threading
+import time
+from collections import defaultdict, deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
+
+log = logging.getLogger(__name__)
+CALLS_FILE = "llm_calls.jsonl"
+Messages = list[dict[str, str]]
+# errors that a retry cannot fix
+_NON_RETRYABLE = (
+    "AuthenticationError",
+    "BadRequestError",
+    "NotFoundError",
+    "PermissionDeniedError",
+    "ContextWindowExceededError",
+)
+
+
+class FatalSelectorError(RuntimeError):
+    """An error that must stop training instead of being absorbed by the scheduler's guards."""
+
+
+class ReplayMiss(FatalSelectorError):
+    """Replay mode was asked a prompt that the recorded run never asked (or asked fewer times)."""
+
+
+@dataclass
+class LLMConfig:
+    """The ``llm`` config group as a typed record (see ``conf/llm/*.yaml`` for each field)."""
+
+    name: str = "offline"
+    model: str | None = None
+    api_base: str | None = None
+    api_key_env: str | None = None
+    temperature: float = 0.0
+    max_tokens: int = 1024
+    timeout: float = 60.0
+    max_retries: int = 3
+    backoff: float = 2.0
+    cache_dir: str | None = None
+    replay_from: str | None = None
+
+    @classmethod
+    def from_cfg(cls, cfg: Mapping[str, Any] | Any) -> LLMConfig:
+        keys = cls.__dataclass_fields__
+        return cls(**{key: cfg[key] for key in keys if key in cfg and cfg[key] is not None})
+
+
+@dataclass
+class LLMReply:
+    """The outcome of one :meth:`LLMClient.complete` call (``text`` is None when every attempt failed)."""
+
+    text: str | None
+    parsed: Any = None
+    parse_error: str | None = None
+    error: str | None = None
+    attempts: int = 0
+    latency: float = 0.0
+    tokens: dict[str, int] = field(default_factory=dict)
+    cost: float | None = None
+    source: str = "llm"  # llm | cache | replay
+
+
+def prompt_hash(messages: Messages) -> str:
+    """sha256 of the messages (model-independent: replay matches recorded prompts across models)."""
+    return hashlib.sha256(json.dumps(messages, sort_keys=True).encode()).hexdigest()
+
+
+class LLMClient:
+    """Sends chat messages to any litellm model; logs, caches and replays.
+
+    Args:
+        config: model, endpoint, sampling, timeout/retry settings, cache and replay locations.
+        run_dir: where ``llm_calls.jsonl`` is appended (None = no log).
+        sleep: the backoff sleep (tests pass a no-op).
+
+    Example:
+        >>> client = LLMClient(LLMConfig(model="openai/test", api_base="http://127.0.0.1:9/v1",
+        ...                              timeout=0.5, max_retries=0))
+        >>> reply = client.complete([{"role": "user", "content": "hi"}], purpose="doc")  # doctest: +SKIP
+        >>> reply.text is None, reply.error.startswith("APIConnectionError")  # doctest: +SKIP
+        (True, True)
+    """
+
+    def __init__(
+        self, config: LLMConfig, run_dir: str | Path | None = None, sleep: Callable[[float], None] = time.sleep
+    ):
+        self.config = config
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.sleep = sleep
+        self._lock = threading.Lock()
+        self._replay: dict[str, deque[dict]] | None = None
+        if config.replay_from:
+            self._replay = self._load_replay(Path(config.replay_from))
+        elif not config.model:
+            raise ValueError("LLMClient needs llm.model (or llm.replay_from for replay)")
+
+    # ---------------------------------------------------------------- public
+    def complete(self, messages: Messages, purpose: str, parser: Callable[[str], Any] | None = None) -> LLMReply:
+        """Asks the model (or cache / replay); parses the answer with ``parser`` (which raises ValueError
+        on a bad answer); logs one line. Never raises for network or parse problems; they are in the reply."""
+        digest = prompt_hash(messages)
+        if self._replay is not None:
+            reply = self._answer_from_replay(digest)
+        else:
+            reply = self._answer_from_cache(digest) or self._ask(messages)
+            if reply.text is not None and reply.source == "llm":
+                self._store_in_cache(digest, reply.text)
+        if reply.text is not None and parser is not None:
+            try:
+                reply.parsed = parser(reply.text)
+            except ValueError as error:
+                reply.parse_error = str(error)
+        self._log(purpose, digest, messages, reply)
+        return reply
+
+    # ---------------------------------------------------------------- the model
+    def _api_key(self) -> str | None:
+        if self.config.api_key_env:
+            return os.environ.get(self.config.api_key_env)
+        return "not-needed" if self.config.api_base else None  # local servers ignore it; the SDK wants one
+
+    def _mask(self, text: str) -> str:
+        key = self._api_key()
+        return text.replace(key, "***") if key and len(key) > 3 else text
+
+    def _ask(self, messages: Messages) -> LLMReply:
+        import litellm  # deferred: slow import, and offline runs never need it
+
+        litellm.telemetry = False
+        errors: list[str] = []
+        started = time.monotonic()
+        for attempt in range(self.config.max_retries + 1):
+            if attempt:
+                self.sleep(self.config.backoff * 2 ** (attempt - 1))  # backoff, doubling per retry
+            try:
+                response = litellm.completion(
+                    model=self.config.model,
+                    messages=messages,
+                    api_base=self.config.api_base,
+                    api_key=self._api_key(),
+                    temperature=self.config.temperature,
+                    max_tokens=self.config.max_tokens,
+                    timeout=self.config.timeout,
+                    num_retries=0,  # retries are ours (logged, with our backoff)
+                    max_retries=0,
+                )
+            except Exception as error:  # noqa: BLE001 (every failure is recorded, then retried or returned)
+                name = type(error).__name__
+                errors.append(self._mask(f"{name}: {str(error)[:300]}"))
+                log.warning("LLM call attempt %d failed: %s", attempt + 1, errors[-1])
+                if name in _NON_RETRYABLE:
+                    break
+                continue
+            text = response.choices[0].message.content or ""
+            usage = getattr(response, "usage", None)
+            tokens = {
+                key: int(getattr(usage, key, 0) or 0) for key in ("prompt_tokens", "completion_tokens", "total_tokens")
+            }
+            try:
+                cost = float(litellm.completion_cost(completion_response=response))
+            except Exception:  # noqa: BLE001 (unknown models have no price)
+                cost = None
+            return LLMReply(
+                text,
+                error="; ".join(errors) or None,
+                attempts=attempt + 1,
+                latency=time.monotonic() - started,
+                tokens=tokens,
+                cost=cost,
+            )
+        return LLMReply(None, error="; ".join(errors), attempts=len(errors), latency=time.monotonic() - started)
+
+    # ---------------------------------------------------------------- cache and replay
+    def _cache_path(self, digest: str) -> Path | None:
+        if not self.config.cache_dir:
+            return None
+        key = hashlib.sha256(f"{self.config.model}\n{digest}".encode()).hexdigest()
+        return Path(self.config.cache_dir) / f"{key}.json"
+
+    def _answer_from_cache(self, digest: str) -> LLMReply | None:
+        path = self._cache_path(digest)
+        if path is None or not path.exists():
+            return None
+        try:
+            return LLMReply(json.loads(path.read_text())["response"], source="cache", attempts=0)
+        except (OSError, ValueError, KeyError):
+            return None  # a damaged cache entry is a miss
+
+    def _store_in_cache(self, digest: str, text: str) -> None:
+        path = self._cache_path(digest)
+        if path is None:
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_suffix(".tmp")
+        temporary.write_text(json.dumps({"model": self.config.model, "prompt_hash": digest, "response": text}))
+        temporary.replace(path)
+
+    @staticmethod
+    def _load_replay(run_dir: Path) -> dict[str, deque[dict]]:
+        path = run_dir / CALLS_FILE if run_dir.is_dir() else run_dir
+        if not path.exists():
+            raise FileNotFoundError(f"replay: no {CALLS_FILE} at {path}")
+        recorded: dict[str, deque[dict]] = defaultdict(deque)
+        for line in path.read_text().splitlines():
+            if line.strip():
+                entry = json.loads(line)
+                recorded[entry["prompt_hash"]].append(entry)
+        return recorded
+
+    def _answer_from_replay(self, digest: str) -> LLMReply:
+        queue = self._replay.get(digest) if self._replay is not None else None
+        if not queue:
+            raise ReplayMiss(f"replay: prompt {digest[:12]} was not recorded (or was asked more often than recorded)")
+        entry = queue.popleft()
+        return LLMReply(entry["response"], error=entry.get("error"), attempts=0, source="replay")
+
+    # ---------------------------------------------------------------- the log
+    def _log(self, purpose: str, digest: str, messages: Messages, reply: LLMReply) -> None:
+        if self.run_dir is None:
+            return
+        entry = {
+            "time": time.time(),
+            "purpose": purpose,
+            "model": self.config.model,
+            "api_base": self.config.api_base,
+            "prompt_hash": digest,
+            "prompt": messages,
+            "response": reply.text,
+            "parsed": reply.parsed,
+            "parse_error": reply.parse_error,
+            "latency": round(reply.latency, 4),
+            "tokens": reply.tokens,
+            "cost": reply.cost,
+            "attempts": reply.attempts,
+            "error": reply.error,
+            "source": reply.source,
+        }
+        with self._lock:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            with open(self.run_dir / CALLS_FILE, "a") as handle:
+                handle.write(json.dumps(entry, default=str) + "\n")
