@@ -105,6 +105,31 @@ def test_base_threads_do_not_change_results():
     torch.testing.assert_close(results[0], results[2], rtol=0, atol=0)
 
 
+PD_XML = SLIDER_XML.replace('<motor joint="x" gear="2"/>', '<position joint="x" kp="20" kv="2"/>')
+
+
+class SliderPDHook(Slider):
+    """PD torques recomputed before every substep by the hook: u = 20 (target − x) − 2 ẋ (gear 2 → halve)."""
+
+    per_substep_control = True
+
+    def substep_control(self, env_slice, qpos, qvel):
+        return (20.0 * (self.ctrl[env_slice] - qpos) - 2.0 * qvel) / 2.0
+
+
+def test_per_substep_control_matches_mujoco_position_actuator():
+    # MuJoCo's <position kp kv> under the Euler integrator applies the same PD force at each substep
+    hook = SliderPDHook(mujoco.MjModel.from_xml_string(SLIDER_XML), num_envs=5, decimation=5, num_threads=2, seed=4)
+    native = Slider(mujoco.MjModel.from_xml_string(PD_XML), num_envs=5, decimation=5, num_threads=2, seed=4)
+    targets = torch.rand(10, 5, 1, generator=torch.Generator().manual_seed(1)) - 0.5
+    td_hook, td_native = hook.reset(), native.reset()
+    for target in targets:
+        td_hook = hook.step(td_hook.set("action", target))["next"]
+        td_native = native.step(td_native.set("action", target))["next"]
+        torch.testing.assert_close(td_hook["observation"], td_native["observation"], rtol=1e-6, atol=1e-7)
+    assert td_hook["observation"][:, 1].abs().max() > 0.01  # it did move
+
+
 # ---------------------------------------------------------------------------------------------- ant
 from torchrl_ahrs.envs.ant import AntEnv  # noqa: E402
 from torchrl_ahrs.envs.quadcopter import QuadcopterEnv  # noqa: E402

@@ -7,9 +7,9 @@ partial resets, seeding, time limits and every TorchRL spec.
 How a control step runs (``_step``)::
 
     ctrl[N, nu]  = apply_action(action[N, A])                 # main thread, vectorised
-    workers      : for each env of their slice: data.ctrl = ctrl[i]; mj_step(model, data, nstep=decimation)
+    workers      : for each env they take: data.ctrl = ctrl[i]; mj_step(model, data, nstep=decimation)
                    (or, with ``substep_control``, one mj_step at a time with fresh PD torques)
-                   then copy ``state_fields`` of their slice into the stacked arrays
+                   then copy ``state_fields`` of that env into the stacked arrays
     after_physics_step()                                       # optional bookkeeping (e.g. previous potential)
     terms        = reward_terms()        -> {name: Tensor[N]}  # vectorised over N
     reward[N, 1] = total_reward(terms)   (default Σ terms)
@@ -17,8 +17,9 @@ How a control step runs (``_step``)::
     truncated    = episode_steps >= max_episode_steps
     obs          = observation()         -> Tensor[N, obs_dim]
 
-``mj_step`` releases the GIL, so ``num_threads`` plain threads (each owning a contiguous slice of the
-environments) step in parallel; the main thread works the last slice itself. No reward or observation
+``mj_step`` releases the GIL, so ``num_threads`` plain threads (the main thread is one of them) step in
+parallel, each taking the next unstepped env from a shared counter (with ``per_substep_control`` each owns
+a contiguous slice instead). No reward or observation
 is computed per environment: hooks read the stacked state.
 
 Stacked state (read-only for hooks, refreshed after every step and reset)::
@@ -86,8 +87,9 @@ Example:
 
 from __future__ import annotations
 
+import itertools
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import mujoco
@@ -216,26 +218,41 @@ class BatchedMujocoEnv(EnvBase):
             for i in range(env_slice.start, env_slice.stop):
                 array[i] = getattr(self.datas[i], name)
 
+    def _run_queue(self, next_env: Iterator[int]) -> None:
+        """Steps envs taken one at a time from a shared counter (load-balances when a thread is preempted)."""
+        model, datas, ctrl, decimation = self.model, self.datas, self.ctrl, self.decimation
+        fields = [(name, self.state[name]) for name in self._fields]
+        for i in next_env:  # itertools.count's next() is atomic under the GIL
+            if i >= self.num_envs:
+                return
+            data = datas[i]
+            data.ctrl[:] = ctrl[i]
+            mujoco.mj_step(model, data, nstep=decimation)  # releases the GIL for all substeps
+            for name, array in fields:
+                array[i] = getattr(data, name)
+
     def _run_slice(self, env_slice: slice) -> None:
-        model, datas, ctrl = self.model, self.datas, self.ctrl
-        if not self.per_substep_control:
-            for i in range(env_slice.start, env_slice.stop):
-                datas[i].ctrl[:] = ctrl[i]
-                mujoco.mj_step(model, datas[i], nstep=self.decimation)
-        else:
-            qpos, qvel = self.state["qpos"][env_slice], self.state["qvel"][env_slice]
-            for _ in range(self.decimation):
-                substep_ctrl = self.substep_control(env_slice, qpos, qvel)
-                for j, i in enumerate(range(env_slice.start, env_slice.stop)):
-                    datas[i].ctrl[:] = substep_ctrl[j]
-                    mujoco.mj_step(model, datas[i])
-                    qpos[j] = datas[i].qpos
-                    qvel[j] = datas[i].qvel
+        """Steps a fixed slice one substep at a time, recomputing ctrl before each (per-substep control)."""
+        model, datas = self.model, self.datas
+        qpos, qvel = self.state["qpos"][env_slice], self.state["qvel"][env_slice]
+        for _ in range(self.decimation):
+            substep_ctrl = self.substep_control(env_slice, qpos, qvel)
+            for j, i in enumerate(range(env_slice.start, env_slice.stop)):
+                datas[i].ctrl[:] = substep_ctrl[j]
+                mujoco.mj_step(model, datas[i])
+                qpos[j] = datas[i].qpos
+                qvel[j] = datas[i].qvel
         self._gather(env_slice)
 
     def _physics_step(self) -> None:
-        futures = [self._pool.submit(self._run_slice, s) for s in self._slices[:-1]] if self._pool else []
-        self._run_slice(self._slices[-1])
+        """Advances every env by ``decimation`` substeps on the pool plus the main thread."""
+        if self.per_substep_control:
+            tasks = [(self._run_slice, s) for s in self._slices]
+        else:
+            counter = itertools.count()
+            tasks = [(self._run_queue, counter)] * len(self._slices)
+        futures = [self._pool.submit(fn, arg) for fn, arg in tasks[:-1]] if self._pool else []
+        tasks[-1][0](tasks[-1][1])
         for future in futures:
             future.result()
 
