@@ -9,7 +9,10 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
+from torchrl_ahrs.envs.ant import AntEnv
 from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv
+from torchrl_ahrs.envs.quadcopter import QuadcopterEnv
+from torchrl_ahrs.envs.registry import load_task_config, make_env
 
 SLIDER_XML = """
 <mujoco>
@@ -131,9 +134,6 @@ def test_per_substep_control_matches_mujoco_position_actuator():
 
 
 # ---------------------------------------------------------------------------------------------- ant
-from torchrl_ahrs.envs.ant import AntEnv  # noqa: E402
-from torchrl_ahrs.envs.quadcopter import QuadcopterEnv  # noqa: E402
-from torchrl_ahrs.envs.registry import load_task_config, make_env  # noqa: E402
 
 COS45 = float(np.cos(np.pi / 4))
 
