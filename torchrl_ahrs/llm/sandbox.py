@@ -83,6 +83,10 @@ SAFE_BUILTINS: dict[str, object] = {
 SAFE_BUILTINS.update({"True": True, "False": False, "None": None})
 
 
+# builtins that sandboxed code may not even name (refused statically; absent at run time anyway)
+FORBIDDEN_NAMES = frozenset(name for name in dir(builtins) if name not in SAFE_BUILTINS) - {"True", "False", "None"}
+
+
 def _restricted_import(name, globals=None, locals=None, fromlist=(), level=0):  # noqa: A002
     """``__import__`` for sandboxed code: only the allow-listed modules, nothing else."""
     if level != 0 or name not in ALLOWED_MODULES:
@@ -203,6 +207,8 @@ class _Checker(ast.NodeVisitor):
     def visit_Name(self, node: ast.Name) -> None:
         if node.id.startswith("_"):
             self.refuse(node, f"name {node.id!r} starts with '_'")
+        elif node.id in FORBIDDEN_NAMES:
+            self.refuse(node, f"name {node.id!r} is not allowed")
 
     def visit_Attribute(self, node: ast.Attribute) -> None:
         if node.attr.startswith("_"):
