@@ -37,6 +37,7 @@ Example:
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -258,6 +259,12 @@ def make_cassie(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, devic
         stiffness=_per_joint(task_cfg.get("stiffness", dict(zip(LEG_JOINTS, (100, 100, 200, 200, 40), strict=True)))),
         damping=_per_joint(task_cfg.get("damping", dict(zip(LEG_JOINTS, (3, 3, 6, 6, 1), strict=True)))),
     )
+    if model.neq and any(model.eq_type == mujoco.mjtEq.mjEQ_CONNECT) and model.opt.timestep > 0.002:
+        warnings.warn(
+            f"this Cassie model has closed-loop connect constraints and stiff springs (Menagerie's); a physics_dt "
+            f"of {model.opt.timestep} s is likely unstable, use task.physics_dt=0.002 task.decimation=10",
+            stacklevel=2,
+        )
     commands = task_cfg.get("commands", {})
     ranges = {k: tuple(commands[k]) for k in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw") if k in commands}
     env = CassieEnv(
