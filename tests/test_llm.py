@@ -314,3 +314,75 @@ def test_weights_parser_round_trip(values):
     else:
         with pytest.raises(ValueError):
             parse_weights_answer(text, len(values))
+
+
+GENERATED_ANSWER = '''Here are my rules.
+
+```python
+import torch
+
+GAIN = 2.0
+
+def doubled_mean(mean_returns, var_returns, history, previous_weights):
+    """Doubled Mean
+
+    Twice the mean.
+
+    math: s_k = 2 mu_k
+    """
+    return GAIN * mean_returns
+
+def sneaky(mean_returns, var_returns, history, previous_weights):
+    import os
+    return mean_returns
+
+def divides_by_zero(mean_returns, var_returns, history, previous_weights):
+    return mean_returns / (var_returns - var_returns)
+
+def helper(x):
+    return x
+```
+
+```python
+def spread(mean_returns, var_returns, history, previous_weights):
+    """Spread
+
+    Standard deviation.
+
+    math: s_k = sqrt(sigma2_k)
+    """
+    return torch.sqrt(var_returns)
+```
+'''
+
+
+def test_generate_rules_writes_a_sandboxed_repository(server, tmp_path):
+    from torchrl_ahrs.generate_rules import generate
+
+    server.script = [("ok", GENERATED_ANSWER)]
+    cfg = OmegaConf.create(
+        {
+            "task": TASK,
+            "llm": {
+                "name": "openai",
+                "model": "openai/test-model",
+                "api_base": f"http://127.0.0.1:{server.port}/v1",
+                "api_key_env": "TEST_LLM_KEY",
+                "timeout": 2.0,
+                "max_retries": 0,
+            },
+        }
+    )
+    result = generate(cfg, tmp_path)
+    assert sorted(result.accepted) == ["doubled_mean", "spread"]
+    assert "import of 'os'" in " ".join(result.refused["sneaky"])
+    assert "not finite" in " ".join(result.refused["divides_by_zero"])
+    assert "takes 1 arguments" in result.refused["helper"][0]
+    prompt = server.requests[0]["body"]["messages"][0]["content"]
+    assert "def hdpg(" in prompt and "forward" in prompt
+    repo = load_repository(result.path)
+    assert [rule.name for rule in repo] == ["Doubled Mean", "Spread"]
+    assert "provenance: model=openai/test-model" in repo.provenance and "prompt_hash=" in repo.provenance
+    assert repo[1].weights(
+        torch.tensor([1.0, 2.0, 4.0]), torch.zeros(3), torch.zeros(5, 3), torch.ones(3), 0.5
+    ).tolist() == pytest.approx([0.5, 0.5 + 1 / 4, 0.5 + 3 / 4])
