@@ -27,7 +27,7 @@ Stacked state (read-only for hooks, refreshed after every step and reset)::
     self.state[name]      numpy float64 [N, *field_shape] for name in state_fields (always qpos, qvel)
     self.state_t[name]    torch views of the same memory (float64, CPU) — no copies
     self.qpos, self.qvel  torch views [N, nq], [N, nv]
-    self.action           the last policy action, torch float32 [N, A] (zeros after reset)
+    self.action           the last policy action clipped to [-1, 1], torch float32 [N, A] (zeros after reset)
     self.ctrl             numpy float64 [N, nu], the control written to MjData
     self.episode_steps    torch int64 [N], control steps since each env's last reset
     self.control_dt       decimation * model.opt.timestep (seconds per control step)
@@ -289,7 +289,8 @@ class BatchedMujocoEnv(EnvBase):
         )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        self.action = tensordict.get("action").detach().to("cpu", torch.float32)
+        # rewards see the action the robot executed: Gaussian policies may sample outside the box
+        self.action = tensordict.get("action").detach().to("cpu", torch.float32).clamp(-1.0, 1.0)
         self.ctrl[:] = self.apply_action(self.action)
         self._physics_step()
         self.episode_steps += 1
