@@ -19,8 +19,8 @@ How a control step runs (``_step``)::
 
 ``mj_step`` releases the GIL, so ``num_threads`` plain threads (the main thread is one of them) step in
 parallel, each taking the next unstepped env from a shared counter (with ``per_substep_control`` each owns
-a contiguous slice instead). No reward or observation
-is computed per environment: hooks read the stacked state.
+a contiguous slice instead). No reward or observation is computed per environment: hooks read the
+stacked state. Every hook except ``substep_control`` runs on the main thread.
 
 Stacked state (read-only for hooks, refreshed after every step and reset)::
 
