@@ -11,7 +11,9 @@ from torch import nn
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
-def make_mlp(in_features: int, hidden_sizes: Sequence[int], out_features: int, activation: str = "tanh") -> nn.Sequential:
+def make_mlp(
+    in_features: int, hidden_sizes: Sequence[int], out_features: int, activation: str = "tanh"
+) -> nn.Sequential:
     """A plain MLP ``in -> hidden... -> out`` with orthogonal init (PPO's usual choice)."""
     if activation not in ACTIVATIONS:
         raise ValueError(f"unknown activation {activation!r}; choose from {sorted(ACTIVATIONS)}")

@@ -1,0 +1,73 @@
+"""The built wheel carries the Hydra configs: train runs from a fresh venv outside the checkout."""
+
+import site
+import subprocess
+import sys
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_wheel_runs_training_outside_the_checkout(tmp_path):
+    wheel_dir = tmp_path / "wheel"
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheel_dir), str(ROOT)],
+        check=True,
+        capture_output=True,
+    )
+    (wheel,) = wheel_dir.glob("torchrl_ahrs-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "torchrl_ahrs/conf/config.yaml" in names
+    assert any(name.startswith("torchrl_ahrs/conf/task/") for name in names)
+
+    # a fresh venv that gets only the wheel; its dependencies come from this interpreter's site-packages
+    env_dir = tmp_path / "venv"
+    venv.create(env_dir, with_pip=False)
+    python = env_dir / "bin" / "python"
+    purelib = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    with zipfile.ZipFile(wheel) as archive:
+        archive.extractall(purelib)
+    dependency_dirs = [path for path in site.getsitepackages() if "site-packages" in path]
+    (Path(purelib) / "deps.pth").write_text("\n".join(dependency_dirs) + "\n")
+
+    workdir = tmp_path / "elsewhere"
+    workdir.mkdir()
+    result = subprocess.run(
+        [
+            str(python),
+            "-m",
+            "torchrl_ahrs.train",
+            "task=point_reach",
+            "method=ppo",
+            "trainer.total_frames=512",
+            "trainer.num_envs=4",
+            "trainer.rollout_steps=64",
+            "trainer.progress_bar=false",
+            f"hydra.run.dir={workdir / 'run'}",
+        ],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    imported_from = subprocess.run(
+        [str(python), "-c", "import torchrl_ahrs; print(torchrl_ahrs.__file__)"],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert str(ROOT) not in imported_from
+    assert (workdir / "run" / "config.yaml").exists()
+    assert (workdir / "run" / "checkpoint.pt").exists()

@@ -1,0 +1,93 @@
+"""Checks on a composed Hydra config, derived values, and saving it without secrets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from torchrl_ahrs.envs.registry import available_tasks
+
+SECRET_MARKERS = ("api_key", "apikey", "token", "secret", "password")
+REDACTED = "<redacted>"
+
+
+class ConfigError(ValueError):
+    """A config value that cannot work; the message names the field and the accepted values."""
+
+
+def resolve_components(cfg: DictConfig) -> list[str]:
+    """The reward leaves forming the K axis: the method's list, or the task's when it says null."""
+    components = cfg.method.get("components")
+    return list(components if components is not None else cfg.task.components)
+
+
+def validate_config(cfg: DictConfig) -> None:
+    """Raises :class:`ConfigError` with one clear line for the first impossible value."""
+    if cfg.task.name not in available_tasks():
+        raise ConfigError(f"unknown task {cfg.task.name!r}; available tasks: {', '.join(available_tasks())}")
+    trainer = cfg.trainer
+    positive = {
+        "trainer.total_frames": trainer.total_frames,
+        "trainer.num_envs": trainer.num_envs,
+        "trainer.rollout_steps": trainer.rollout_steps,
+        "trainer.num_epochs": trainer.num_epochs,
+        "trainer.num_minibatches": trainer.num_minibatches,
+        "trainer.workers": trainer.workers,
+        "scheduler.interval": cfg.scheduler.interval,
+        "scheduler.history_length": cfg.scheduler.history_length,
+    }
+    for name, value in positive.items():
+        if not isinstance(value, int) or value < 1:
+            raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    if trainer.lr <= 0:
+        raise ConfigError(f"trainer.lr must be positive, got {trainer.lr}")
+    if trainer.collector not in ("sync", "multi"):
+        raise ConfigError(f"trainer.collector must be 'sync' or 'multi', got {trainer.collector!r}")
+    if trainer.collector == "multi" and trainer.num_envs % trainer.workers:
+        raise ConfigError(
+            f"trainer.num_envs ({trainer.num_envs}) must be divisible by trainer.workers ({trainer.workers})"
+        )
+    frames_per_batch = trainer.num_envs * trainer.rollout_steps
+    if frames_per_batch < trainer.num_minibatches:
+        raise ConfigError(
+            f"a batch of {frames_per_batch} frames cannot be split into {trainer.num_minibatches} minibatches"
+        )
+    if not 0 <= cfg.ppo.gamma <= 1 or not 0 <= cfg.ppo.lmbda <= 1:
+        raise ConfigError(f"ppo.gamma and ppo.lmbda must lie in [0, 1], got {cfg.ppo.gamma}, {cfg.ppo.lmbda}")
+    components = resolve_components(cfg)
+    known = set(cfg.task.components) | {"total"}
+    unknown = [name for name in components if name not in known]
+    if unknown:
+        raise ConfigError(
+            f"method {cfg.method.name!r} uses components {unknown} that task {cfg.task.name!r} does not have; "
+            f"its components are {list(cfg.task.components)} (and 'total')"
+        )
+    weights = cfg.method.get("initial_weights")
+    if weights is not None and len(weights) != len(components):
+        raise ConfigError(
+            f"method.initial_weights has {len(weights)} values but there are {len(components)} components {components}"
+        )
+
+
+def redact(container: Any) -> Any:
+    """A copy of a plain dict/list tree with every secret-looking field replaced by ``<redacted>``."""
+    if isinstance(container, dict):
+        return {
+            key: (REDACTED if _is_secret(key) and value not in (None, "") else redact(value))
+            for key, value in container.items()
+        }
+    if isinstance(container, list):
+        return [redact(value) for value in container]
+    return container
+
+
+def _is_secret(key: Any) -> bool:
+    return isinstance(key, str) and any(marker in key.lower() for marker in SECRET_MARKERS)
+
+
+def save_config(cfg: DictConfig, path: Path) -> None:
+    """Writes the resolved config as YAML, secrets redacted."""
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    path.write_text(OmegaConf.to_yaml(OmegaConf.create(redact(resolved))))

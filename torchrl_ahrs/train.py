@@ -1,0 +1,183 @@
+"""Hybrid-reward PPO training: ``python -m torchrl_ahrs.train task=<task> method=<method>``.
+
+The whole algorithm, in the order it runs::
+
+    env        = make_env(task)                   reward split into ("reward", c) leaves, c = 1..K
+    actor      = TanhNormal policy                critic = K-head MLP  (one value per component)
+    estimator  = WeightedMultiGAE(components)     A_k per component, A = Σ_k w_k A_k
+    loss       = ClipPPOLoss on A, critic regressed on all K value targets
+    trainer    = torchrl Trainer(Collector, Adam) + hooks:
+                   PPOMinibatches     advantage recomputed each epoch, shuffled minibatches
+                   RuleScheduler      every `scheduler.interval` iterations: stats -> rule -> w
+                   ObservationNorm    running mean/var updated after each update
+                   LinearLRDecay, UpdateWeights, ComponentReturnLog
+    run dir    = config.yaml (resolved, no secrets), CSV + TensorBoard metrics, checkpoint.pt
+
+PPO is this loop with K = 1 on ("reward", "total"); HD-PPO and the AHRS variants differ only in the
+components and the selector that sets ``w``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import hydra
+import torch
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.trainers import Trainer, UpdateWeights
+
+from torchrl_ahrs.config import ConfigError, resolve_components, save_config, validate_config
+from torchrl_ahrs.envs.registry import make_env
+from torchrl_ahrs.scheduling import build_scheduler
+from torchrl_ahrs.training.hooks import (
+    ComponentReturnLog,
+    LinearLRDecay,
+    ObservationNormUpdate,
+    PPOMinibatches,
+    loss_metrics,
+)
+from torchrl_ahrs.training.loggers import build_logger
+from torchrl_ahrs.training.loss import HybridClipPPOLoss
+from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.value import WeightedMultiGAE
+
+log = logging.getLogger("torchrl_ahrs.train")
+
+
+def make_collector(cfg: DictConfig, policy, components: list[str]):
+    """One process (``sync``) or ``workers`` processes each stepping ``num_envs / workers`` envs."""
+    trainer_cfg = cfg.trainer
+    frames_per_batch = trainer_cfg.num_envs * trainer_cfg.rollout_steps
+    task = OmegaConf.to_container(cfg.task, resolve=True)
+    if trainer_cfg.collector == "sync":
+        env = make_env(task, trainer_cfg.num_envs, cfg.seed, components=components)
+        return Collector(env, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames)
+    envs_per_worker = trainer_cfg.num_envs // trainer_cfg.workers
+    env_fns = [
+        _EnvFactory(task, envs_per_worker, cfg.seed + 1000 * worker, components)
+        for worker in range(trainer_cfg.workers)
+    ]
+    return MultiSyncCollector(
+        env_fns, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames, cat_results=0
+    )
+
+
+class _EnvFactory:
+    """Picklable env constructor for collector worker processes."""
+
+    def __init__(self, task: dict, num_envs: int, seed: int, components: list[str]):
+        self.task, self.num_envs, self.seed, self.components = task, num_envs, seed, components
+
+    def __call__(self):
+        return make_env(self.task, self.num_envs, self.seed, components=self.components)
+
+
+def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
+    """Runs one training job and returns the last logged metrics."""
+    validate_config(cfg)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, run_dir / "config.yaml")
+    torch.manual_seed(cfg.seed)
+    components = resolve_components(cfg)
+    task = OmegaConf.to_container(cfg.task, resolve=True)
+    log.info("task %s, method %s, K=%d components %s", task["name"], cfg.method.name, len(components), components)
+
+    # --- networks: shapes from a one-env probe of the task -----------------------------------------
+    probe = make_env(task, 1, cfg.seed, components=components)
+    obs_dim = probe.observation_spec["observation"].shape[-1]
+    action_spec = probe.full_action_spec[probe.action_key]
+    probe.close()
+    model = cfg.model
+    obs_norm = RunningNorm(obs_dim)
+    actor = build_actor(obs_norm, obs_dim, action_spec, model.hidden_sizes, model.activation, model.init_log_std)
+    critic = build_critic(
+        obs_norm, obs_dim, len(components), model.hidden_sizes, model.activation, model.separate_heads
+    )
+
+    # --- advantage, loss, optimiser ---------------------------------------------------------------
+    ppo = cfg.ppo
+    estimator = WeightedMultiGAE(
+        components,
+        gamma=ppo.gamma,
+        lmbda=ppo.lmbda,
+        value_network=critic,
+        normalize_components=ppo.normalize_components,
+    )
+    loss = HybridClipPPOLoss(
+        actor,
+        critic,
+        clip_epsilon=ppo.clip_epsilon,
+        entropy_bonus=ppo.entropy_coef > 0,
+        entropy_coeff=ppo.entropy_coef,
+        critic_coeff=ppo.critic_coef,
+        loss_critic_type="l2",
+        normalize_advantage=ppo.normalize_advantage,
+    )
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5)
+
+    # --- collection and the trainer ---------------------------------------------------------------
+    collector = make_collector(cfg, actor, components)
+    logger = build_logger(cfg.logger.backends, run_dir, "metrics")
+    trainer = Trainer(
+        collector=collector,
+        total_frames=cfg.trainer.total_frames,
+        frame_skip=1,
+        optim_steps_per_batch=cfg.trainer.num_minibatches,
+        loss_module=loss,
+        optimizer=optimizer,
+        logger=logger,
+        clip_grad_norm=True,
+        clip_norm=cfg.trainer.max_grad_norm,
+        progress_bar=cfg.trainer.progress_bar,
+        seed=cfg.seed,
+        num_epochs=cfg.trainer.num_epochs,
+        log_interval=0,
+        save_trainer_interval=sys.maxsize,
+        auto_log_optim_steps=False,
+    )
+    PPOMinibatches(estimator, cfg.trainer.num_minibatches, seed=cfg.seed).register(trainer)
+    scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
+    scheduler.register(trainer, "rule_scheduler")
+    ObservationNormUpdate(obs_norm).register(trainer)
+    if cfg.trainer.anneal_lr:
+        LinearLRDecay(optimizer, cfg.trainer.total_frames).register(trainer)
+    UpdateWeights(collector, update_weights_interval=1).register(trainer)
+    returns_log = ComponentReturnLog(components, estimator)
+    returns_log.register(trainer)
+    trainer.register_op("post_optim_complete_log", loss_metrics)
+
+    trainer.train()
+
+    if cfg.trainer.checkpoint:
+        torch.save(
+            {
+                "actor": actor.state_dict(),
+                "critic": critic.state_dict(),
+                "estimator": estimator.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(),
+                "collected_frames": trainer.collected_frames,
+                "components": components,
+            },
+            run_dir / "checkpoint.pt",
+        )
+    log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
+    return dict(returns_log.latest)
+
+
+@hydra.main(config_path="pkg://torchrl_ahrs.conf", config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    try:
+        train(cfg, Path(HydraConfig.get().runtime.output_dir))
+    except ConfigError as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""TorchRL trainer hooks that make the plain ``Trainer`` run PPO with a weighted multi-GAE.
+
+One iteration of :class:`torchrl.trainers.Trainer` with these hooks::
+
+    batch [N, T] from the collector
+    for epoch in num_epochs:
+        PPOMinibatches.pre_epoch      advantage_components, value_target, advantage = WeightedMultiGAE(batch)
+        for minibatch in num_minibatches:
+            PPOMinibatches.next_minibatch   -> HybridClipPPOLoss -> Adam step (clipped gradient)
+    ObservationNormUpdate             running mean/var absorb the batch just trained on
+    LinearLRDecay                     lr_i = lr_0 * (1 - frames_i / total_frames)
+    ComponentReturnLog                every component's finished-episode return, every weight
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.trainers import Trainer, TrainerHookBase
+
+from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
+from torchrl_ahrs.training.models import RunningNorm
+from torchrl_ahrs.value import WeightedMultiGAE
+
+
+class PPOMinibatches(TrainerHookBase):
+    """Recomputes the advantage with the current critic before every epoch and serves minibatches.
+
+    Each epoch visits every transition exactly once, in a fresh random order (sampling without
+    replacement), which is what PPO's epochs mean. Register with ``optim_steps_per_batch =
+    num_minibatches`` on the trainer.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> hook = PPOMinibatches(estimator=lambda td: td, num_minibatches=4, seed=0)
+        >>> batch = TensorDict({"x": torch.arange(16.0).reshape(2, 8)}, [2, 8])
+        >>> _ = hook.pre_epoch(batch)
+        >>> sorted(torch.cat([hook.next_minibatch(batch)["x"] for _ in range(4)]).tolist()) == list(range(16))
+        True
+    """
+
+    def __init__(self, estimator, num_minibatches: int, seed: int = 0):
+        if num_minibatches < 1:
+            raise ValueError(f"num_minibatches must be at least 1, got {num_minibatches}")
+        self.estimator = estimator
+        self.num_minibatches = num_minibatches
+        self.generator = torch.Generator().manual_seed(seed)
+        self._minibatches: list[TensorDictBase] = []
+
+    def pre_epoch(self, batch: TensorDictBase) -> TensorDictBase:
+        with torch.no_grad():
+            batch = self.estimator(batch)
+        flat = batch.reshape(-1)
+        order = torch.randperm(flat.shape[0], generator=self.generator)
+        self._minibatches = [flat[indices] for indices in order.chunk(self.num_minibatches)]
+        return batch
+
+    def next_minibatch(self, batch: TensorDictBase) -> TensorDictBase:
+        if not self._minibatches:
+            raise StopIteration
+        return self._minibatches.pop()
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.generator.set_state(state_dict["generator"])
+
+    def register(self, trainer: Trainer, name: str = "ppo_minibatches") -> None:
+        trainer.register_op("pre_epoch", self.pre_epoch)
+        trainer.register_op("process_optim_batch", self.next_minibatch)
+        trainer.register_module(name, self)
+
+
+class ObservationNormUpdate(TrainerHookBase):
+    """Feeds each batch's observations to a :class:`RunningNorm` *after* the PPO update on it.
+
+    Updating after the update keeps the log-probabilities stored at collection time consistent with
+    the policy being optimised; the next collection then sees the new statistics.
+    """
+
+    def __init__(self, obs_norm: RunningNorm, in_key: str = "observation"):
+        self.obs_norm = obs_norm
+        self.in_key = in_key
+        self._pending: torch.Tensor | None = None
+
+    def remember(self, batch: TensorDictBase) -> TensorDictBase:
+        self._pending = batch.get(self.in_key)
+        return batch
+
+    def apply(self) -> None:
+        if self._pending is not None:
+            self.obs_norm.update(self._pending)
+            self._pending = None
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.obs_norm.state_dict()
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.obs_norm.load_state_dict(state_dict)
+
+    def register(self, trainer: Trainer, name: str = "obs_norm") -> None:
+        trainer.register_op("batch_process", self.remember)
+        trainer.register_op("post_steps", self.apply)
+        trainer.register_module(name, self)
+
+
+class LinearLRDecay(TrainerHookBase):
+    """``lr = lr_0 * max(0, 1 - frames / total_frames)``, applied after every iteration."""
+
+    def __init__(self, optimizer: torch.optim.Optimizer, total_frames: int):
+        self.optimizer = optimizer
+        self.total_frames = total_frames
+        self.initial_lrs = [group["lr"] for group in optimizer.param_groups]
+        self.trainer: Trainer | None = None
+
+    def __call__(self) -> None:
+        progress = min(1.0, self.trainer.collected_frames / self.total_frames)
+        for group, initial_lr in zip(self.optimizer.param_groups, self.initial_lrs):
+            group["lr"] = initial_lr * (1.0 - progress)  # lr_i = lr_0 (1 - f_i / F)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"initial_lrs": self.initial_lrs}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.initial_lrs = state_dict["initial_lrs"]
+
+    def register(self, trainer: Trainer, name: str = "lr_decay") -> None:
+        self.trainer = trainer
+        trainer.register_op("post_steps", self)
+        trainer.register_module(name, self)
+
+
+class ComponentReturnLog(TrainerHookBase):
+    """Logs the return of every episode that finished in the batch, per component, and the weights.
+
+    Keys: ``return/total``, ``return/<component>``, ``weight/<component>``, ``episodes``,
+    ``frames_per_second``. Returns are means over the episodes that ended in this batch; a batch in
+    which none ended logs only the weights and the throughput.
+    """
+
+    def __init__(self, components: Sequence[str], estimator: WeightedMultiGAE):
+        self.components = list(components)
+        self.tracked = self.components + ([TOTAL] if TOTAL not in self.components else [])
+        self.estimator = estimator
+        self.last_time = time.perf_counter()
+        self.latest: dict[str, float] = {}
+
+    def __call__(self, batch: TensorDictBase) -> dict[str, float]:
+        now = time.perf_counter()
+        metrics = {"frames_per_second": batch.numel() / max(now - self.last_time, 1e-9)}
+        self.last_time = now
+        returns = finished_episode_returns(batch, self.tracked)  # [M, K+1]
+        if returns.shape[0]:
+            metrics["episodes"] = float(returns.shape[0])
+            for name, column in zip(self.tracked, returns.mean(0).tolist()):
+                metrics[f"return/{name}"] = column
+            metrics["log_pbar"] = True
+        for name, weight in zip(self.components, self.estimator.weights.tolist()):
+            metrics[f"weight/{name}"] = weight
+        self.latest.update({key: value for key, value in metrics.items() if key != "log_pbar"})
+        return metrics
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        pass
+
+    def register(self, trainer: Trainer, name: str = "component_returns") -> None:
+        trainer.register_op("pre_steps_log", self)
+        trainer.register_module(name, self)
+
+
+def loss_metrics(optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, float] | None:
+    """PPO diagnostics averaged over the iteration's minibatches, under ``train/``."""
+    if average_losses is None:
+        return None
+    return {f"train/{key}": value.mean().item() for key, value in average_losses.items() if value.numel()}

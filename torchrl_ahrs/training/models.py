@@ -1,0 +1,93 @@
+"""Actor, K-head critic and the observation normaliser they share."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+from torch import nn
+from torchrl.data import TensorSpec
+from torchrl.modules import ProbabilisticActor, TanhNormal
+
+from torchrl_ahrs.value import MultiHeadCritic, make_mlp
+
+
+class RunningNorm(nn.Module):
+    """Observation standardisation with running statistics kept as buffers.
+
+    The statistics travel with the networks' state (checkpoints, collector weight sync), so a
+    multi-process collector normalises exactly like the learner. They change only through
+    :meth:`update`, which the training loop calls after each PPO update with the batch just used.
+
+    Example:
+        >>> norm = RunningNorm(2)
+        >>> norm.update(torch.tensor([[1.0, 10.0], [3.0, 30.0]]))
+        >>> norm(torch.tensor([[2.0, 20.0]])).abs().max() < 1e-3
+        tensor(True)
+    """
+
+    def __init__(self, size: int, clip: float = 10.0, eps: float = 1e-8):
+        super().__init__()
+        self.clip = clip
+        self.eps = eps
+        self.register_buffer("mean", torch.zeros(size))
+        self.register_buffer("var", torch.ones(size))
+        self.register_buffer("count", torch.tensor(0.0))
+
+    @torch.no_grad()
+    def update(self, observations: torch.Tensor) -> None:
+        """Merges the statistics of ``observations [*, size]`` (parallel Welford / Chan et al.)."""
+        flat = observations.reshape(-1, self.mean.shape[0]).to(self.mean.dtype)
+        batch_count = flat.shape[0]
+        batch_mean, batch_var = flat.mean(0), flat.var(0, unbiased=False)
+        total = self.count + batch_count
+        delta = batch_mean - self.mean
+        self.mean += delta * batch_count / total  # mu <- mu + delta * n_b / n
+        m2 = self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total
+        self.var.copy_(m2 / total)  # sigma^2 <- (M2_a + M2_b + delta^2 n_a n_b / n) / n
+        self.count.copy_(total)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        normalized = (observation - self.mean) / torch.sqrt(self.var + self.eps)  # z = (x - mu) / sigma
+        return normalized.clamp(-self.clip, self.clip)
+
+
+def build_actor(
+    obs_norm: RunningNorm,
+    obs_dim: int,
+    action_spec: TensorSpec,
+    hidden_sizes: Sequence[int],
+    activation: str = "tanh",
+    init_log_std: float = -0.5,
+    in_key: str = "observation",
+) -> ProbabilisticActor:
+    """Gaussian policy squashed into the action bounds (TanhNormal), state-independent scale."""
+    action_dim = action_spec.shape[-1]
+    loc_net = make_mlp(obs_dim, hidden_sizes, action_dim, activation)
+    nn.init.orthogonal_(loc_net[-1].weight, 0.01)  # small initial actions keep early rollouts near rest
+    scale = AddStateIndependentNormalScale(action_dim, init_value=float(torch.exp(torch.tensor(init_log_std))))
+    module = TensorDictModule(nn.Sequential(obs_norm, loc_net, scale), in_keys=[in_key], out_keys=["loc", "scale"])
+    low, high = action_spec.space.low, action_spec.space.high
+    return ProbabilisticActor(
+        module,
+        in_keys=["loc", "scale"],
+        spec=action_spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": low, "high": high, "tanh_loc": False},
+        return_log_prob=True,
+    )
+
+
+def build_critic(
+    obs_norm: RunningNorm,
+    obs_dim: int,
+    num_heads: int,
+    hidden_sizes: Sequence[int],
+    activation: str = "tanh",
+    separate_heads: bool = False,
+    in_key: str = "observation",
+) -> TensorDictModule:
+    """A :class:`MultiHeadCritic` writing ``"state_value"`` ``[*B, K]``."""
+    critic = MultiHeadCritic(obs_dim, num_heads, hidden_sizes, activation, separate_heads)
+    return TensorDictModule(nn.Sequential(obs_norm, critic), in_keys=[in_key], out_keys=["state_value"])
