@@ -100,6 +100,15 @@ def test_set_seed_reproduces_a_fresh_env():
     assert torch.equal(reseeded["next", "observation"], fresh["next", "observation"])
 
 
+def test_set_seed_keeps_running_episodes_valid():
+    # a collector resets first and its trainer seeds afterwards: stepping on must not break
+    env = _short_ant(num_envs=2, seed=0)
+    td = env.reset()
+    env.set_seed(0)
+    out = env.step(env.rand_action(td))
+    assert (out["next", "info", "elapsed_step"] == 1).all()
+
+
 def test_ant_v5_components_sum_to_native_reward():
     cfg = load_task_config("ant_v5")
     env = make_env(cfg, num_envs=4, seed=0)

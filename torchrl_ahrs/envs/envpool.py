@@ -96,6 +96,7 @@ class EnvPoolEnv(EnvBase):
         self._all_ids = np.arange(num_envs, dtype=np.int32)
         # envs whose episode ended and that EnvPool would autoreset on their next step
         self._pending_reset = np.zeros(num_envs, dtype=bool)
+        self._reseed_at_reset = False  # set_seed was called: make a new pool at the next full reset
 
         space = self._pool.observation_space
         self._dict_obs = hasattr(space, "spaces")
@@ -222,6 +223,10 @@ class EnvPoolEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         reset_mask = None if tensordict is None else tensordict.get("_reset", None)
         if reset_mask is None or bool(reset_mask.all()):
+            if self._reseed_at_reset:
+                self._pool.close()
+                self._pool, _ = self._make_pool(self._seed)
+                self._reseed_at_reset = False
             obs, info = self._pool.reset()
             ids = self._all_ids
             out = self._full_reset_td(obs, info)
@@ -261,13 +266,13 @@ class EnvPoolEnv(EnvBase):
         return out
 
     def _set_seed(self, seed: int | None) -> None:
-        # EnvPool seeds its envs at construction: reseeding means a new pool (and a reset before stepping).
+        # EnvPool seeds its envs when the pool is made, so a new seed means a new pool. It is made at
+        # the next full reset, not now: running episodes (e.g. a collector's, which only resets ended
+        # envs) stay valid, and "set_seed(s); reset()" equals a fresh env made with seed s.
         if seed is None:
             return
-        self._pool.close()
         self._seed = int(seed)
-        self._pool, _ = self._make_pool(self._seed)
-        self._pending_reset[:] = True
+        self._reseed_at_reset = True
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         pool = getattr(self, "_pool", None)
