@@ -156,6 +156,9 @@ class LLMClient:
         import litellm  # deferred: slow import, and offline runs never need it
 
         litellm.telemetry = False
+        litellm.suppress_debug_info = True
+        for name in ("LiteLLM", "LiteLLM Router", "LiteLLM Proxy", "httpx"):
+            logging.getLogger(name).setLevel(logging.WARNING)  # our own log line per call says what happened
         errors: list[str] = []
         started = time.monotonic()
         for attempt in range(self.config.max_retries + 1):
@@ -241,7 +244,9 @@ class LLMClient:
         if not queue:
             raise ReplayMiss(f"replay: prompt {digest[:12]} was not recorded (or was asked more often than recorded)")
         entry = queue.popleft()
-        return LLMReply(entry["response"], error=entry.get("error"), attempts=0, source="replay")
+        return LLMReply(
+            entry["response"], error=entry.get("error"), attempts=int(entry.get("attempts", 0)), source="replay"
+        )
 
     # ---------------------------------------------------------------- the log
     def _log(self, purpose: str, digest: str, messages: Messages, reply: LLMReply) -> None:
