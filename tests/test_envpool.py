@@ -107,6 +107,10 @@ def test_set_seed_keeps_running_episodes_valid():
     env.set_seed(0)
     out = env.step(env.rand_action(td))
     assert (out["next", "info", "elapsed_step"] == 1).all()
+    # all envs ending together (a masked reset) must not restart the seed's initial states
+    first = td["observation"].clone()
+    again = env.reset(out["next"].clone().set("_reset", torch.ones(2, 1, dtype=torch.bool)))
+    assert not torch.equal(again["observation"], first)
 
 
 def test_ant_v5_components_sum_to_native_reward():

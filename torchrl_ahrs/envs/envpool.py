@@ -223,7 +223,7 @@ class EnvPoolEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         reset_mask = None if tensordict is None else tensordict.get("_reset", None)
         if reset_mask is None or bool(reset_mask.all()):
-            if self._reseed_at_reset:
+            if self._reseed_at_reset and reset_mask is None:  # a fresh start, not episodes that all ended
                 self._pool.close()
                 self._pool, _ = self._make_pool(self._seed)
                 self._reseed_at_reset = False
@@ -267,8 +267,9 @@ class EnvPoolEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         # EnvPool seeds its envs when the pool is made, so a new seed means a new pool. It is made at
-        # the next full reset, not now: running episodes (e.g. a collector's, which only resets ended
-        # envs) stay valid, and "set_seed(s); reset()" equals a fresh env made with seed s.
+        # the next reset without a "_reset" mask, not now: running episodes (e.g. a collector's, which
+        # only resets ended envs, with a mask) stay valid and do not restart the seed's initial states
+        # when all envs end together; "set_seed(s); reset()" equals a fresh env made with seed s.
         if seed is None:
             return
         self._seed = int(seed)
