@@ -32,15 +32,19 @@ SECRET = "sk-test-secret-0123456789"
 def no_network(monkeypatch):
     """Only loopback connections are allowed while these tests run."""
     real_connect = socket.socket.connect
+    attempts = []
 
     def guarded(self, address):
         host = address[0] if isinstance(address, tuple) else address
         if host not in ("127.0.0.1", "localhost", "::1"):
-            raise AssertionError(f"network access attempted: {address}")
+            attempts.append(address)  # recorded: a library could swallow the exception below
+            raise OSError(f"network access attempted: {address}")
         return real_connect(self, address)
 
     monkeypatch.setattr(socket.socket, "connect", guarded)
     monkeypatch.setenv("TEST_LLM_KEY", SECRET)
+    yield
+    assert attempts == [], f"network access attempted: {attempts}"
 
 
 class ScriptedServer:
