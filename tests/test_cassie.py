@@ -94,6 +94,14 @@ def test_scale_terms_multiplies_scale_and_dt():
     assert scaled["no_fly"].item() == pytest.approx(0.005)  # 0.25 · 0.02
 
 
+def test_task_config_scales_are_legged_gym_cassie_and_unknown_terms_fail():
+    cfg = cassie_cfg()
+    assert dict(cfg.reward_scales) == lr.CASSIE_REWARD_SCALES  # the YAML and the code agree
+    assert list(cfg.components) == list(lr.CASSIE_REWARD_SCALES)  # one component per term
+    with pytest.raises(ValueError, match="nofly"):
+        make_cassie({**cfg, "reward_scales": {"nofly": 1.0}}, num_envs=1)
+
+
 def test_quat_rotate_inverse_matches_mujoco_and_hand_case():
     # a 90° yaw: the world x axis is the body's −y axis
     yaw90 = torch.tensor([[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]], dtype=torch.float64)

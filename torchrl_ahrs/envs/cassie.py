@@ -114,6 +114,9 @@ class CassieEnv(BatchedMujocoEnv):
         self.command_high = np.array([ranges[k][1] for k in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw")], np.float64)
         self.resampling_steps = max(1, round(resampling_time_s / dt))
         self.min_planar_command = float(min_planar_command)
+        unknown = set(reward_scales or {}) - set(lr.CASSIE_REWARD_SCALES)
+        if unknown:
+            raise ValueError(f"unknown Cassie reward terms {sorted(unknown)}; terms: {list(lr.CASSIE_REWARD_SCALES)}")
         self.reward_scales = {**lr.CASSIE_REWARD_SCALES, **(reward_scales or {})}
         self.tracking_sigma = float(tracking_sigma)
         self.feet_air_time_target = float(feet_air_time_target)
