@@ -56,7 +56,13 @@ def make_collector(cfg: DictConfig, policy, components: list[str]):
     task = OmegaConf.to_container(cfg.task, resolve=True)
     if trainer_cfg.collector == "sync":
         env = make_env(task, trainer_cfg.num_envs, cfg.seed, components=components)
-        return Collector(env, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames)
+        return Collector(
+            env,
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=trainer_cfg.total_frames,
+            auto_register_policy_transforms=False,
+        )
     envs_per_worker = trainer_cfg.num_envs // trainer_cfg.workers
     env_fns = [
         _EnvFactory(task, envs_per_worker, cfg.seed + 1000 * worker, components)

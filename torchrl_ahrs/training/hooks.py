@@ -121,7 +121,7 @@ class LinearLRDecay(TrainerHookBase):
 
     def __call__(self) -> None:
         progress = min(1.0, self.trainer.collected_frames / self.total_frames)
-        for group, initial_lr in zip(self.optimizer.param_groups, self.initial_lrs):
+        for group, initial_lr in zip(self.optimizer.param_groups, self.initial_lrs, strict=True):
             group["lr"] = initial_lr * (1.0 - progress)  # lr_i = lr_0 (1 - f_i / F)
 
     def state_dict(self) -> dict[str, Any]:
@@ -158,10 +158,10 @@ class ComponentReturnLog(TrainerHookBase):
         returns = finished_episode_returns(batch, self.tracked)  # [M, K+1]
         if returns.shape[0]:
             metrics["episodes"] = float(returns.shape[0])
-            for name, column in zip(self.tracked, returns.mean(0).tolist()):
+            for name, column in zip(self.tracked, returns.mean(0).tolist(), strict=True):
                 metrics[f"return/{name}"] = column
             metrics["log_pbar"] = True
-        for name, weight in zip(self.components, self.estimator.weights.tolist()):
+        for name, weight in zip(self.components, self.estimator.weights.tolist(), strict=True):
             metrics[f"weight/{name}"] = weight
         self.latest.update({key: value for key, value in metrics.items() if key != "log_pbar"})
         return metrics

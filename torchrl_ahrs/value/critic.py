@@ -99,7 +99,7 @@ class MultiHeadCritic(nn.Module):
             return
         widths = [in_features, *hidden_sizes]
         layers: list[nn.Module] = []
-        for depth, (width_in, width_out) in enumerate(zip(widths[:-1], widths[1:])):
+        for depth, (width_in, width_out) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
             layer = HeadwiseLinear(num_heads, width_in, width_out, math.sqrt(2), shared_input=depth == 0)
             layers += [layer, ACTIVATIONS[activation]()]
         layers.append(HeadwiseLinear(num_heads, widths[-1], 1, 1.0, shared_input=not hidden_sizes))
