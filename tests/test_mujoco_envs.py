@@ -271,3 +271,26 @@ def test_quadcopter_hover_thrust_holds_altitude():
         td = env.step(td.set("action", torch.full((2, 4), hover)))["next"]
     assert env.qpos[:, 2].tolist() == pytest.approx([1.0, 1.0], abs=1e-6)
     assert td["info", "reward_pos"].tolist() == pytest.approx([1.0, 1.0], abs=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------- Ant-v5 parity
+def test_ant_v5_on_the_base_matches_gymnasium_step_for_step():
+    # differential oracle: gymnasium's own Ant-v5 from the same state under the same actions
+    gym = pytest.importorskip("gymnasium")
+    from torchrl_ahrs.envs.ant_v5_mujoco import AntV5Mujoco
+
+    ours = AntV5Mujoco(num_envs=2, num_threads=2, seed=5)
+    td = ours.reset()
+    native = gym.make("Ant-v5").unwrapped
+    native.reset(seed=0)
+    native.set_state(ours.state["qpos"][1].copy(), ours.state["qvel"][1].copy())
+    actions = torch.rand(30, 2, 8, generator=torch.Generator().manual_seed(2)) * 2 - 1
+    for a in actions:
+        td = ours.step(td.set("action", a))["next"]
+        obs, reward, terminated, _, info = native.step(a[1].numpy().astype(np.float64))
+        np.testing.assert_allclose(td["observation"][1].numpy(), obs, rtol=1e-5, atol=1e-5)
+        for term in ("forward", "ctrl", "contact", "survive"):
+            assert td["info", f"reward_{term}"][1].item() == pytest.approx(info[f"reward_{term}"], rel=1e-5, abs=1e-6)
+        assert td["reward"][1].item() == pytest.approx(reward, rel=1e-5, abs=1e-5)
+        assert td["terminated"][1].item() == terminated
+    assert td["observation"][1, 27:].abs().sum() > 0  # contact forces are live (mj_rnePostConstraint ran)

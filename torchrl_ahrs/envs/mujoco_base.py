@@ -35,7 +35,9 @@ Stacked state (read-only for hooks, refreshed after every step and reset)::
 ``state_fields`` names ``MjData`` attributes (``"xpos"``, ``"xquat"``, ``"sensordata"``, ``"cfrc_ext"``,
 ``"qacc"``, ``"actuator_force"``, ...). After ``mj_step`` the derived quantities (xpos, sensordata,
 cfrc_ext, ...) belong to the state before the last integration substep, as in gymnasium and EnvPool;
-read positions and velocities of free-joint bodies from qpos/qvel when that lag matters.
+read positions and velocities of free-joint bodies from qpos/qvel when that lag matters. Asking for
+``cacc``, ``cfrc_int`` or ``cfrc_ext`` makes the base call ``mj_rnePostConstraint`` after stepping
+(``mj_step`` leaves them stale unless a sensor needs them).
 
 Hooks (override in the subclass):
 
@@ -149,6 +151,8 @@ class BatchedMujocoEnv(EnvBase):
             mujoco.mj_forward(model, data)
         fields = ("qpos", "qvel", *[f for f in self.state_fields if f not in ("qpos", "qvel")])
         self._fields = fields
+        # mj_step leaves cacc / cfrc_int / cfrc_ext stale unless a sensor needs them (gymnasium calls this too)
+        self._post_constraint = any(name in ("cacc", "cfrc_int", "cfrc_ext") for name in fields)
         self.state = {
             name: np.zeros((num_envs, *np.shape(getattr(self.datas[0], name))), np.float64) for name in fields
         }
@@ -228,6 +232,8 @@ class BatchedMujocoEnv(EnvBase):
             data = datas[i]
             data.ctrl[:] = ctrl[i]
             mujoco.mj_step(model, data, nstep=decimation)  # releases the GIL for all substeps
+            if self._post_constraint:
+                mujoco.mj_rnePostConstraint(model, data)
             for name, array in fields:
                 array[i] = getattr(data, name)
 
@@ -242,6 +248,9 @@ class BatchedMujocoEnv(EnvBase):
                 mujoco.mj_step(model, datas[i])
                 qpos[j] = datas[i].qpos
                 qvel[j] = datas[i].qvel
+        if self._post_constraint:
+            for i in range(env_slice.start, env_slice.stop):
+                mujoco.mj_rnePostConstraint(model, datas[i])
         self._gather(env_slice)
 
     def _physics_step(self) -> None:
@@ -342,6 +351,8 @@ class BatchedMujocoEnv(EnvBase):
             data.qpos[:] = qpos[j]
             data.qvel[:] = qvel[j]
             mujoco.mj_forward(self.model, data)
+            if self._post_constraint:
+                mujoco.mj_rnePostConstraint(self.model, data)
             for name in self._fields:
                 self.state[name][i] = getattr(data, name)
         ids = torch.as_tensor(env_ids, dtype=torch.long)
