@@ -146,8 +146,8 @@ def test_cli_accepts_shipped_rules_and_refuses_hostile_file(tmp_path):
 
 
 def test_aux_kind_validates_reward_shape():
-    good = "import torch\ndef compute_aux_reward(observation, action):\n    return -torch.square(action).sum(-1)\n"
-    bad = "def compute_aux_reward(observation, action):\n    return observation\n"
+    good = "import torch\ndef compute_aux_reward(obs):\n    return -torch.square(obs['action']).sum(-1)\n"
+    bad = "def compute_aux_reward(obs):\n    return obs['observation']\n"
     assert validate(good, "aux")["ok"]
     report = validate(bad, "aux")
     assert not report["ok"] and "output shape" in report["reasons"][0]

@@ -369,9 +369,16 @@ WALL_SECONDS = 60.0  # the parent gives up on the child after this long
 
 
 def validate_in_child(
-    path: str | Path, kind: str, cpu_seconds: int = CPU_SECONDS, memory_bytes: int = MEMORY_BYTES
+    path: str | Path,
+    kind: str,
+    cpu_seconds: int = CPU_SECONDS,
+    memory_bytes: int = MEMORY_BYTES,
+    inputs_path: str | Path | None = None,
 ) -> Verdict:
     """Runs :mod:`torchrl_ahrs.llm.sandbox_worker` on ``path`` in a limited child process.
+
+    ``inputs_path`` (aux kind): a ``torch.save``'d ``dict[str, Tensor [N, ...]]`` of real transitions the
+    function is called on instead of the synthetic cases.
 
     Returns a :class:`Verdict` with one reason per failing function/input (or the limit that was hit).
     """
@@ -383,6 +390,7 @@ def validate_in_child(
         kind,
         str(cpu_seconds),
         str(memory_bytes),
+        *([str(inputs_path)] if inputs_path is not None else []),
     ]
     environment = {key: value for key, value in os.environ.items() if "KEY" not in key and "TOKEN" not in key}
     environment.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})

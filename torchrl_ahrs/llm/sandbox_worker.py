@@ -1,7 +1,7 @@
 """Child-process half of the sandbox: loads a file under resource limits and calls its functions.
 
 Run by :func:`torchrl_ahrs.llm.sandbox.validate_in_child` as
-``python -m torchrl_ahrs.llm.sandbox_worker FILE KIND CPU_SECONDS MEMORY_BYTES``; prints one JSON line
+``python -m torchrl_ahrs.llm.sandbox_worker FILE KIND CPU_SECONDS MEMORY_BYTES [INPUTS.pt]``; prints one JSON line
 ``{"ok": bool, "reasons": [...], "functions": [...]}`` as its last line of output.
 
 Limits are installed after ``torch`` is imported (its import alone needs more address space than the
@@ -23,7 +23,7 @@ import torch
 from torchrl_ahrs.llm.sandbox import load_functions
 
 RULE_ARITY = 4  # rule(mean_returns [K], var_returns [K], history [L, K], previous_weights [K]) -> [K]
-AUX_FUNCTION = "compute_aux_reward"  # compute_aux_reward(observation [N, D], action [N, A]) -> [N]
+AUX_FUNCTION = "compute_aux_reward"  # compute_aux_reward(obs: dict[str, Tensor [N, ...]]) -> [N]
 
 
 class CpuLimitExceeded(Exception):
@@ -64,23 +64,40 @@ def rule_cases(seed: int = 0) -> list[tuple[str, tuple[torch.Tensor, ...]]]:
     return cases
 
 
-def aux_cases(seed: int = 0) -> list[tuple[str, tuple[torch.Tensor, ...]]]:
-    """Random and edge-case auxiliary-reward inputs: (label, (observation [N, D], action [N, A]))."""
+def aux_cases(seed: int = 0, inputs: dict[str, torch.Tensor] | None = None) -> list[tuple[str, tuple]]:
+    """Auxiliary-reward inputs: (label, (obs,)) with ``obs: dict[str, Tensor [N, ...]]``.
+
+    ``inputs`` are real transitions of the task (see ``torchrl_ahrs.rewards.auxiliary.aux_inputs``); the
+    cases are that batch, its first row alone (N = 1) and an all-zero batch of the same layout. Without
+    ``inputs`` the cases are random ``{"observation": [N, D], "action": [N, A]}`` dicts.
+    """
+    if inputs is not None:
+        first_row = {name: value[:1] for name, value in inputs.items()}
+        zeros = {name: torch.zeros_like(value) for name, value in inputs.items()}
+        return [("task batch", (inputs,)), ("task batch, N=1", (first_row,)), ("all-zero batch", (zeros,))]
     generator = torch.Generator().manual_seed(seed)
     cases = []
     for num_envs, obs_dim, act_dim in ((1, 3, 1), (8, 27, 8), (64, 13, 4)):
+        observation = torch.randn(num_envs, obs_dim, generator=generator)
+        action = torch.randn(num_envs, act_dim, generator=generator)
+        cases.append((f"random N={num_envs}", ({"observation": observation, "action": action},)))
         cases.append(
             (
-                f"random N={num_envs}",
-                (
-                    torch.randn(num_envs, obs_dim, generator=generator),
-                    torch.randn(num_envs, act_dim, generator=generator),
-                ),
+                f"zeros N={num_envs}",
+                ({"observation": torch.zeros_like(observation), "action": torch.zeros_like(action)},),
             )
         )
-        cases.append((f"zeros N={num_envs}", (torch.zeros(num_envs, obs_dim), torch.zeros(num_envs, act_dim))))
-        cases.append((f"large N={num_envs}", (torch.full((num_envs, obs_dim), 1e3), torch.ones(num_envs, act_dim))))
     return cases
+
+
+def _batch_size(inputs: tuple) -> int:
+    first = inputs[0]
+    return next(iter(first.values())).shape[0] if isinstance(first, dict) else first.shape[0]
+
+
+def _fresh(value):
+    """A copy the called code may mutate without touching the next case."""
+    return {name: tensor.clone() for name, tensor in value.items()} if isinstance(value, dict) else value.clone()
 
 
 def _check_output(output, expected_shape: tuple[int, ...]) -> str | None:
@@ -97,7 +114,7 @@ def _check_output(output, expected_shape: tuple[int, ...]) -> str | None:
     return None
 
 
-def validate(source: str, kind: str) -> dict:
+def validate(source: str, kind: str, inputs: dict[str, torch.Tensor] | None = None) -> dict:
     """Loads ``source`` and calls its functions on every case; returns the JSON-able report."""
     try:
         functions = load_functions(source)
@@ -114,15 +131,15 @@ def validate(source: str, kind: str) -> dict:
     elif kind == "aux":
         targets = {name: fn for name, fn in functions.items() if name == AUX_FUNCTION}
         if not targets:
-            reasons.append(f"no function named {AUX_FUNCTION}(observation, action)")
-        cases = aux_cases()
+            reasons.append(f"no function named {AUX_FUNCTION}(obs)")
+        cases = aux_cases(inputs=inputs)
     else:
         return {"ok": False, "reasons": [f"unknown kind {kind!r}"], "functions": []}
     for name, fn in targets.items():
         for label, inputs in cases:
-            expected = (inputs[0].shape[0],)
+            expected = (_batch_size(inputs),)
             try:
-                problem = _check_output(fn(*[tensor.clone() for tensor in inputs]), expected)
+                problem = _check_output(fn(*[_fresh(value) for value in inputs]), expected)
             except CpuLimitExceeded:
                 reasons.append(f"{name}: CPU-time limit exceeded on input '{label}'")
                 return {"ok": False, "reasons": reasons, "functions": list(targets)}
@@ -140,9 +157,11 @@ def main(argv: list[str]) -> int:
     path, kind, cpu_seconds, memory_bytes = argv[0], argv[1], int(argv[2]), int(argv[3])
     with open(path) as handle:
         source = handle.read()
+    # aux: real transitions of the task (a dict of tensors saved by the parent), loaded before the limits
+    inputs = torch.load(argv[4], weights_only=True) if len(argv) > 4 else None
     torch.set_num_threads(1)
     _install_limits(cpu_seconds, memory_bytes)
-    report = validate(source, kind)
+    report = validate(source, kind, inputs)
     print(json.dumps(report), flush=True)
     return 0 if report["ok"] else 1
 
