@@ -1,0 +1,253 @@
+"""Training throughput: our pipeline against TorchRL's reference PPO pipeline, same task, same frames.
+
+Both train PPO on the MuJoCo Ant-v5 task for the same number of frames with the same batch geometry
+(N envs x T steps per batch, E epochs, M minibatches), the same network widths, the same seed and
+the same thread count:
+
+- ``ours``: :func:`torchrl_ahrs.train.train` with ``task=ant_v5 method=<ppo|hdppo>`` (EnvPool's Ant-v5
+  behind our batched env, reward components, K-head critic, WeightedMultiGAE, TorchRL Trainer + hooks,
+  CSV + TensorBoard logging), exactly as ``python -m torchrl_ahrs.train`` runs it.
+- ``reference``: the pipeline TorchRL's ``sota-implementations/ppo`` builds for MuJoCo, written here
+  from its description: gymnasium's ``Ant-v5`` through ``GymEnv`` in a ``ParallelEnv`` holding the
+  same N environments, VecNorm + ClipTransform + RewardSum + StepCounter + DoubleToFloat, a
+  ``Collector``, ``GAE``, ``ClipPPOLoss``, a ``TensorDictReplayBuffer`` with
+  ``SamplerWithoutReplacement``, Adam with linear learning-rate annealing and gradient clipping.
+
+Timing: let ``t_i`` be the moment batch ``i`` (i = 1..n) leaves the collector. Frames per second are
+``(n - 1 - w) * frames_per_batch / (t_n - t_{w+1})`` with ``w`` warm-up batches, so both numbers
+cover whole iterations (update on batch i, then collection of batch i+1) and neither counts
+construction, process start-up, the first ``w`` iterations or the final checkpoint. For ``ours`` the ``t_i`` come from the ``frames_per_second`` metric the
+training loop logs once per batch. Pipelines alternate across ``--repeat`` rounds (so a busy
+neighbour on a shared machine penalises neither more) and the median of each is reported.
+
+``ParallelEnv`` starts one process per environment. With more environments than ``--ref-workers``
+each worker process steps ``N / workers`` gymnasium envs in a ``SerialEnv`` (TorchRL's nested batched
+env), which on a small machine is faster than N processes competing for few cores.
+
+Run: ``python benchmarks/bench_pipeline.py --frames 32768 --num-envs 64 --repeat 3``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import functools
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from hydra import compose, initialize_config_module
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+from torch import nn
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+from torchrl.envs import (
+    ClipTransform,
+    DoubleToFloat,
+    ParallelEnv,
+    RewardSum,
+    SerialEnv,
+    StepCounter,
+    TransformedEnv,
+    VecNorm,
+)
+from torchrl.envs.libs.gym import GymEnv
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+
+def frames_per_second(batch_times: list[float], frames_per_batch: int, warmup: int) -> float:
+    """Frames/s over the batches after the first ``warmup`` ones, from the batch delivery times [s].
+
+    Example:
+        >>> frames_per_second([0.0, 5.0, 6.0, 7.0], frames_per_batch=100, warmup=1)
+        100.0
+    """
+    if len(batch_times) <= warmup:
+        raise ValueError(f"need more than {warmup} batches to time, got {len(batch_times)}")
+    return frames_per_batch * (len(batch_times) - 1 - warmup) / (batch_times[-1] - batch_times[warmup])
+
+
+# --- ours ----------------------------------------------------------------------------------------
+
+
+def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> float:
+    """Frames/s of ``torchrl_ahrs.train.train`` on task=ant_v5 after ``args.warmup`` batches."""
+    from torchrl_ahrs.train import train
+
+    overrides = [
+        "task=ant_v5",
+        f"method={method}",
+        f"seed={args.seed}",
+        f"trainer.total_frames={total_frames}",
+        f"trainer.num_envs={args.num_envs}",
+        f"trainer.rollout_steps={args.rollout_steps}",
+        f"trainer.num_epochs={args.epochs}",
+        f"trainer.num_minibatches={args.minibatches}",
+        f"model.hidden_sizes=[{','.join(map(str, args.hidden))}]",
+        "trainer.progress_bar=false",
+        "checkpoint.interval=0",
+    ]
+    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=overrides)
+    with tempfile.TemporaryDirectory() as run_dir:
+        train(cfg, Path(run_dir))
+        with open(Path(run_dir) / "metrics" / "scalars" / "frames_per_second.csv") as handle:
+            rates = [float(row[1]) for row in csv.reader(handle)]
+    frames_per_batch = args.num_envs * args.rollout_steps
+    # the logged rate of batch i is frames_per_batch / (t_i - t_{i-1}); rebuild the t_i from it (the
+    # first rate counts from the hook's construction, so t_1 is the origin)
+    batch_times = [0.0]
+    for rate in rates[1:]:
+        batch_times.append(batch_times[-1] + frames_per_batch / rate)
+    return frames_per_second(batch_times, frames_per_batch, args.warmup)
+
+
+# --- TorchRL reference ---------------------------------------------------------------------------
+
+
+def make_gym_ant() -> GymEnv:
+    return GymEnv("Ant-v5")
+
+
+def make_reference_env(num_envs: int, workers: int, seed: int) -> TransformedEnv:
+    """``ParallelEnv`` of gymnasium Ant-v5 with the sota PPO transforms; batch size [N] or [W, N/W]."""
+    if workers >= num_envs:
+        base = ParallelEnv(num_envs, make_gym_ant)
+    else:
+        if num_envs % workers:
+            raise ValueError(f"--num-envs {num_envs} must be a multiple of --ref-workers {workers}")
+        base = ParallelEnv(workers, functools.partial(SerialEnv, num_envs // workers, make_gym_ant))
+    env = TransformedEnv(base)
+    env.append_transform(VecNorm(in_keys=["observation"], decay=0.99999, eps=1e-2))
+    env.append_transform(ClipTransform(in_keys=["observation"], low=-10, high=10))
+    env.append_transform(RewardSum())
+    env.append_transform(StepCounter())
+    env.append_transform(DoubleToFloat(in_keys=["observation"]))
+    env.set_seed(seed)
+    return env
+
+
+def make_reference_models(env: TransformedEnv, hidden: list[int]) -> tuple[ProbabilisticActor, ValueOperator]:
+    """TanhNormal actor with a state-independent scale and a one-output critic, both tanh MLPs."""
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    action_spec = env.full_action_spec_unbatched
+    action_dim = env.action_spec_unbatched.shape[-1]
+    loc_net = MLP(in_features=obs_dim, out_features=action_dim, num_cells=hidden, activation_class=nn.Tanh)
+    actor = ProbabilisticActor(
+        TensorDictModule(
+            nn.Sequential(loc_net, AddStateIndependentNormalScale(action_dim, scale_lb=1e-8)),
+            in_keys=["observation"],
+            out_keys=["loc", "scale"],
+        ),
+        in_keys=["loc", "scale"],
+        spec=action_spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={
+            "low": env.action_spec_unbatched.space.low,
+            "high": env.action_spec_unbatched.space.high,
+            "tanh_loc": False,
+        },
+        return_log_prob=True,
+    )
+    value_net = MLP(in_features=obs_dim, out_features=1, num_cells=hidden, activation_class=nn.Tanh)
+    return actor, ValueOperator(value_net, in_keys=["observation"])
+
+
+def run_reference(args: argparse.Namespace, total_frames: int) -> float:
+    """Frames/s of TorchRL's reference PPO pipeline on gymnasium Ant-v5 after ``args.warmup`` batches."""
+    torch.manual_seed(args.seed)
+    frames_per_batch = args.num_envs * args.rollout_steps
+    env = make_reference_env(args.num_envs, args.ref_workers, args.seed)
+    actor, critic = make_reference_models(env, args.hidden)
+    collector = Collector(
+        env, actor, frames_per_batch=frames_per_batch, total_frames=total_frames, max_frames_per_traj=-1
+    )
+    buffer = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(frames_per_batch),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=frames_per_batch // args.minibatches,
+    )
+    advantage = GAE(gamma=0.99, lmbda=0.95, value_network=critic, average_gae=False)
+    # entropy off, critic 0.5, l2, normalised advantage: the same objective as our default config
+    loss_module = ClipPPOLoss(
+        actor,
+        critic,
+        clip_epsilon=0.2,
+        entropy_bonus=False,
+        critic_coeff=0.5,
+        loss_critic_type="l2",
+        normalize_advantage=True,
+    )
+    optimizer = torch.optim.Adam(loss_module.parameters(), lr=3e-4, eps=1e-5)
+    batch_times = []
+    collected = 0
+    for data in collector:
+        batch_times.append(time.perf_counter())
+        collected += data.numel()
+        for _ in range(args.epochs):
+            with torch.no_grad():
+                data = advantage(data)
+            buffer.extend(data.reshape(-1))
+            for minibatch in buffer:
+                losses = loss_module(minibatch)
+                total = losses["loss_objective"] + losses["loss_critic"]
+                optimizer.zero_grad(set_to_none=True)
+                total.backward()
+                nn.utils.clip_grad_norm_(loss_module.parameters(), 1.0)
+                optimizer.step()
+        for group in optimizer.param_groups:
+            group["lr"] = 3e-4 * max(0.0, 1.0 - collected / total_frames)  # lr_i = lr_0 (1 - f_i / F)
+        collector.update_policy_weights_()
+    collector.shutdown()
+    return frames_per_second(batch_times, frames_per_batch, args.warmup)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=32768, help="timed frames per run (after warm-up)")
+    parser.add_argument("--num-envs", type=int, default=64)
+    parser.add_argument("--rollout-steps", type=int, default=32, help="T; frames_per_batch = N * T")
+    parser.add_argument("--epochs", type=int, default=5)
+    parser.add_argument("--minibatches", type=int, default=4)
+    parser.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
+    parser.add_argument("--warmup", type=int, default=1, help="batches excluded from the timing")
+    parser.add_argument("--repeat", type=int, default=1, help="alternating rounds; medians are reported")
+    parser.add_argument("--methods", nargs="+", default=["ppo", "hdppo"], choices=["ppo", "hdppo"])
+    parser.add_argument("--ref-workers", type=int, default=4, help="ParallelEnv worker processes (reference)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    frames_per_batch = args.num_envs * args.rollout_steps
+    batches = max(1, -(-args.frames // frames_per_batch))  # ceil
+    total_frames = (batches + args.warmup + 1) * frames_per_batch  # n batches time n - 1 - warmup iterations
+    print(
+        f"Ant-v5  N={args.num_envs} T={args.rollout_steps} frames_per_batch={frames_per_batch} "
+        f"epochs={args.epochs} minibatches={args.minibatches} hidden={args.hidden} "
+        f"timed frames={batches * frames_per_batch} (+{args.warmup} warm-up batch) "
+        f"torch threads={torch.get_num_threads()} ref ParallelEnv workers={min(args.ref_workers, args.num_envs)}"
+    )
+    rates: dict[str, list[float]] = {"reference": [], **{method: [] for method in args.methods}}
+    for round_index in range(args.repeat):
+        for name in rates:
+            rate = run_reference(args, total_frames) if name == "reference" else run_ours(name, args, total_frames)
+            rates[name].append(rate)
+            print(f"  round {round_index + 1}: {name:9s} {rate:8.0f} frames/s", flush=True)
+    reference = statistics.median(rates["reference"])
+    print(f"reference (TorchRL sota PPO, gymnasium ParallelEnv) {reference:8.0f} frames/s (median)")
+    for method in args.methods:
+        ours = statistics.median(rates[method])
+        print(
+            f"ours method={method:5s} (train.train, EnvPool)       {ours:8.0f} frames/s (median)  "
+            f"ratio ours/reference {ours / reference:5.2f}x"
+        )
+
+
+if __name__ == "__main__":
+    main()
