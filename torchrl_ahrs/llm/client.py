@@ -2,9 +2,15 @@
 
 Every :meth:`LLMClient.complete` call writes one JSON line to ``<run_dir>/llm_calls.jsonl``:
 time, purpose, model, prompt hash, prompt (the messages), response, parsed decision, parse error,
-latency, tokens, cost, attempts, error, and whether the answer came from the cache or a replay. API
-keys are read from the environment variable named by ``llm.api_key_env`` only, are never written,
-and are masked in error texts.
+latency, tokens, cost, attempts, error, and whether the answer came from the cache or a replay. The
+API key comes from the environment variable named by ``llm.api_key_env`` (preferred) or from
+``llm.api_key``; it is never written, and both are masked in error texts.
+
+* **Retries**: timeouts, connection errors, HTTP 429/5xx and unreadable bodies are retried
+  ``llm.max_retries`` times with doubling backoff; a 429/503 ``Retry-After`` (or ``retry-after-ms``)
+  header is honoured up to ``llm.max_retry_after`` seconds; a longer demand ends the call at once (the
+  selector falls back) instead of stalling training. Bad requests (e.g. a prompt over the model's
+  context window) and authentication errors are not retried.
 
 * **Cache** (``llm.cache_dir``): answers keyed by model + messages; a rerun with the same prompts is free.
 * **Replay** (``llm=replay llm.replay_from=<run dir>``): answers come only from that run's log, matched
@@ -26,6 +32,7 @@ import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from email.utils import parsedate_to_datetime
 from pathlib import Path
 from typing import Any
 
@@ -60,11 +67,13 @@ class LLMConfig:
     model: str | None = None
     api_base: str | None = None
     api_key_env: str | None = None
+    api_key: str | None = field(default=None, repr=False)  # discouraged (use api_key_env); never printed
     temperature: float = 0.0
     max_tokens: int = 1024
     timeout: float = 60.0
     max_retries: int = 3
     backoff: float = 2.0
+    max_retry_after: float = 30.0
     cache_dir: str | None = None
     replay_from: str | None = None
 
@@ -144,13 +153,18 @@ class LLMClient:
 
     # ---------------------------------------------------------------- the model
     def _api_key(self) -> str | None:
-        if self.config.api_key_env:
-            return os.environ.get(self.config.api_key_env)
+        if self.config.api_key:
+            return self.config.api_key
+        if self.config.api_key_env and os.environ.get(self.config.api_key_env):
+            return os.environ[self.config.api_key_env]
         return "not-needed" if self.config.api_base else None  # local servers ignore it; the SDK wants one
 
     def _mask(self, text: str) -> str:
-        key = self._api_key()
-        return text.replace(key, "***") if key and len(key) > 3 else text
+        secrets = [self.config.api_key, os.environ.get(self.config.api_key_env or "")]
+        for secret in secrets:
+            if secret and len(secret) > 3:
+                text = text.replace(secret, "***")
+        return text
 
     def _ask(self, messages: Messages) -> LLMReply:
         import litellm  # deferred: slow import, and offline runs never need it
@@ -161,9 +175,11 @@ class LLMClient:
             logging.getLogger(name).setLevel(logging.WARNING)  # our own log line per call says what happened
         errors: list[str] = []
         started = time.monotonic()
+        server_wait: float | None = None  # the last Retry-After demand
         for attempt in range(self.config.max_retries + 1):
             if attempt:
-                self.sleep(self.config.backoff * 2 ** (attempt - 1))  # backoff, doubling per retry
+                delay = self.config.backoff * 2 ** (attempt - 1)  # backoff, doubling per retry
+                self.sleep(max(delay, server_wait or 0.0))  # the server's demand wins when longer
             try:
                 response = litellm.completion(
                     model=self.config.model,
@@ -181,6 +197,13 @@ class LLMClient:
                 errors.append(self._mask(f"{name}: {str(error)[:300]}"))
                 log.warning("LLM call attempt %d failed: %s", attempt + 1, errors[-1])
                 if name in _NON_RETRYABLE:
+                    break
+                server_wait = retry_after(error)
+                if server_wait is not None and server_wait > self.config.max_retry_after:
+                    errors[-1] += (
+                        f" (server asks to retry after {server_wait:g} s > llm.max_retry_after="
+                        f"{self.config.max_retry_after:g} s: not retried)"
+                    )
                     break
                 continue
             text = response.choices[0].message.content or ""
@@ -273,3 +296,35 @@ class LLMClient:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             with open(self.run_dir / CALLS_FILE, "a") as handle:
                 handle.write(json.dumps(entry, default=str) + "\n")
+
+
+def retry_after(error: BaseException) -> float | None:
+    """Seconds a failed response asks the client to wait (``retry-after-ms`` or ``Retry-After`` as
+    seconds or an HTTP date), from the headers litellm attaches to its exception; None if absent.
+
+    Example:
+        >>> class Limited(Exception):
+        ...     litellm_response_headers = {"retry-after": "2"}
+        >>> retry_after(Limited()), retry_after(ValueError())
+        (2.0, None)
+    """
+    for source in (
+        getattr(error, "litellm_response_headers", None),
+        getattr(getattr(error, "response", None), "headers", None),
+        getattr(error, "headers", None),
+    ):
+        if not source:
+            continue
+        headers = {str(key).lower(): str(value) for key, value in dict(source).items()}
+        try:
+            if "retry-after-ms" in headers:
+                return max(0.0, float(headers["retry-after-ms"]) / 1000)  # ms -> s
+            if "retry-after" in headers:
+                value = headers["retry-after"].strip()
+                if value.replace(".", "", 1).isdigit():
+                    return float(value)
+                moment = parsedate_to_datetime(value)  # an HTTP date: wait until then
+                return max(0.0, moment.timestamp() - time.time())
+        except (TypeError, ValueError, OverflowError):
+            continue  # an unreadable header is no demand
+    return None
