@@ -38,6 +38,8 @@ def validate_config(cfg: DictConfig) -> None:
         "scheduler.interval": cfg.scheduler.interval,
         "scheduler.history_length": cfg.scheduler.history_length,
     }
+    if not isinstance(cfg.checkpoint.interval, int) or cfg.checkpoint.interval < 0:
+        raise ConfigError(f"checkpoint.interval must be a non-negative integer, got {cfg.checkpoint.interval!r}")
     for name, value in positive.items():
         if not isinstance(value, int) or value < 1:
             raise ConfigError(f"{name} must be a positive integer, got {value!r}")
@@ -85,6 +87,29 @@ def redact(container: Any) -> Any:
 
 def _is_secret(key: Any) -> bool:
     return isinstance(key, str) and any(marker in key.lower() for marker in SECRET_MARKERS)
+
+
+def load_saved_config(run_dir: Path, overrides: list[str] = ()) -> DictConfig:
+    """A run's saved ``config.yaml`` with redacted secrets emptied (they come from the environment
+    again) and ``key=value`` command-line overrides applied (group choices such as ``task=`` are
+    ignored: a resumed run keeps its task and method)."""
+    path = Path(run_dir) / "config.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"no config.yaml in {run_dir}; is it a torchrl_ahrs run directory?")
+    saved = OmegaConf.to_container(OmegaConf.load(path))
+    cfg = OmegaConf.create(_unredact(saved))
+    dotted = [item for item in overrides if "=" in item and "." in item.split("=", 1)[0]]
+    cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(dotted))
+    cfg.resume = str(run_dir)
+    return cfg
+
+
+def _unredact(container: Any) -> Any:
+    if isinstance(container, dict):
+        return {key: None if value == REDACTED else _unredact(value) for key, value in container.items()}
+    if isinstance(container, list):
+        return [_unredact(value) for value in container]
+    return container
 
 
 def save_config(cfg: DictConfig, path: Path) -> None:

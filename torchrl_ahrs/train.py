@@ -12,6 +12,7 @@ The whole algorithm, in the order it runs::
                    ObservationNorm    running mean/var updated after each update
                    LinearLRDecay, UpdateWeights, ComponentReturnLog
     run dir    = config.yaml (resolved, no secrets), CSV + TensorBoard metrics, checkpoint.pt
+                 (written atomically every `checkpoint.interval` iterations; `resume=<run dir>` continues)
 
 PPO is this loop with K = 1 on ("reward", "total"); HD-PPO and the AHRS variants differ only in the
 components and the selector that sets ``w``.
@@ -31,11 +32,22 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.trainers import Trainer, UpdateWeights
 
-from torchrl_ahrs.config import ConfigError, resolve_components, save_config, validate_config
+from torchrl_ahrs.config import ConfigError, load_saved_config, resolve_components, save_config, validate_config
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.scheduling import build_scheduler
+from torchrl_ahrs.scheduling.scheduler import DECISIONS_FILE
+from torchrl_ahrs.training.checkpoint import (
+    CHECKPOINT_FILE,
+    CheckpointHook,
+    load_checkpoint,
+    rng_state,
+    set_rng_state,
+    truncate_jsonl,
+    truncate_metrics,
+)
 from torchrl_ahrs.training.hooks import (
     ComponentReturnLog,
+    FiniteGuard,
     LinearLRDecay,
     ObservationNormUpdate,
     PPOMinibatches,
@@ -49,7 +61,7 @@ from torchrl_ahrs.value import WeightedMultiGAE
 log = logging.getLogger("torchrl_ahrs.train")
 
 
-def make_collector(cfg: DictConfig, policy, components: list[str]):
+def make_collector(cfg: DictConfig, policy, components: list[str], remaining_frames: int):
     """One process (``sync``) or ``workers`` processes each stepping ``num_envs / workers`` envs."""
     trainer_cfg = cfg.trainer
     frames_per_batch = trainer_cfg.num_envs * trainer_cfg.rollout_steps
@@ -60,7 +72,7 @@ def make_collector(cfg: DictConfig, policy, components: list[str]):
             env,
             policy,
             frames_per_batch=frames_per_batch,
-            total_frames=trainer_cfg.total_frames,
+            total_frames=remaining_frames,
             auto_register_policy_transforms=False,
         )
     envs_per_worker = trainer_cfg.num_envs // trainer_cfg.workers
@@ -69,7 +81,7 @@ def make_collector(cfg: DictConfig, policy, components: list[str]):
         for worker in range(trainer_cfg.workers)
     ]
     return MultiSyncCollector(
-        env_fns, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames, cat_results=0
+        env_fns, policy, frames_per_batch=frames_per_batch, total_frames=remaining_frames, cat_results=0
     )
 
 
@@ -84,10 +96,13 @@ class _EnvFactory:
 
 
 def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
-    """Runs one training job and returns the last logged metrics."""
+    """Runs one training job (or continues it, when ``run_dir`` holds a checkpoint and ``cfg.resume``
+    names it) and returns the last logged metrics."""
     validate_config(cfg)
     run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, run_dir / "config.yaml")
+    resumed = load_checkpoint(run_dir) if cfg.get("resume") else None
+    if resumed is None:
+        save_config(cfg, run_dir / "config.yaml")
     torch.manual_seed(cfg.seed)
     components = resolve_components(cfg)
     task = OmegaConf.to_container(cfg.task, resolve=True)
@@ -127,7 +142,12 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5)
 
     # --- collection and the trainer ---------------------------------------------------------------
-    collector = make_collector(cfg, actor, components)
+    done_frames = resumed["collected_frames"] if resumed else 0
+    if resumed:
+        log.info("resuming %s at %d frames (iteration %d)", run_dir, done_frames, resumed["iteration"])
+        truncate_metrics(run_dir / "metrics", done_frames)
+        truncate_jsonl(run_dir / DECISIONS_FILE, done_frames)
+    collector = make_collector(cfg, actor, components, remaining_frames=cfg.trainer.total_frames - done_frames)
     logger = build_logger(cfg.logger.backends, run_dir, "metrics")
     trainer = Trainer(
         collector=collector,
@@ -140,47 +160,76 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         clip_grad_norm=True,
         clip_norm=cfg.trainer.max_grad_norm,
         progress_bar=cfg.trainer.progress_bar,
-        seed=cfg.seed,
+        seed=cfg.seed + done_frames,
         num_epochs=cfg.trainer.num_epochs,
         log_interval=0,
         save_trainer_interval=sys.maxsize,
         auto_log_optim_steps=False,
     )
-    PPOMinibatches(estimator, cfg.trainer.num_minibatches, seed=cfg.seed).register(trainer)
+    trainer.register_op("batch_process", FiniteGuard(components))
+    minibatches = PPOMinibatches(estimator, cfg.trainer.num_minibatches, seed=cfg.seed)
+    minibatches.register(trainer)
     scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
     scheduler.register(trainer, "rule_scheduler")
     ObservationNormUpdate(obs_norm).register(trainer)
+    lr_decay = LinearLRDecay(optimizer, cfg.trainer.total_frames)
     if cfg.trainer.anneal_lr:
-        LinearLRDecay(optimizer, cfg.trainer.total_frames).register(trainer)
+        lr_decay.register(trainer)
     UpdateWeights(collector, update_weights_interval=1).register(trainer)
     returns_log = ComponentReturnLog(components, estimator)
     returns_log.register(trainer)
     trainer.register_op("post_optim_complete_log", loss_metrics)
 
-    trainer.train()
+    def training_state() -> dict[str, Any]:
+        return {
+            "actor": actor.state_dict(),
+            "critic": critic.state_dict(),
+            "estimator": estimator.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "scheduler": scheduler.state_dict(),
+            "minibatches": minibatches.state_dict(),
+            "rng": rng_state(),
+            "collected_frames": trainer.collected_frames,
+            "components": components,
+            "llm_log_lines": count_lines(run_dir / "llm_calls.jsonl"),
+        }
 
-    if cfg.trainer.checkpoint:
-        torch.save(
-            {
-                "actor": actor.state_dict(),
-                "critic": critic.state_dict(),
-                "estimator": estimator.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(),
-                "collected_frames": trainer.collected_frames,
-                "components": components,
-            },
-            run_dir / "checkpoint.pt",
-        )
+    checkpoint = CheckpointHook(run_dir / CHECKPOINT_FILE, cfg.checkpoint.interval or sys.maxsize, training_state)
+    checkpoint.register(trainer)  # last post_steps hook: saves the state the next iteration starts from
+    if resumed:
+        actor.load_state_dict(resumed["actor"])
+        critic.load_state_dict(resumed["critic"])
+        estimator.load_state_dict(resumed["estimator"])
+        optimizer.load_state_dict(resumed["optimizer"])
+        scheduler.load_state_dict(resumed["scheduler"])
+        minibatches.load_state_dict(resumed["minibatches"])
+        checkpoint.load_state_dict(resumed)
+        set_rng_state(resumed["rng"])
+        trainer.collected_frames = done_frames
+        lr_decay()  # the learning rate the interrupted run had reached
+        collector.update_policy_weights_()
+
+    if done_frames < cfg.trainer.total_frames:
+        trainer.train()
+    checkpoint.save()
     log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
     return dict(returns_log.latest)
+
+
+def count_lines(path: Path) -> int:
+    return sum(1 for _ in path.open()) if path.exists() else 0
 
 
 @hydra.main(config_path="pkg://torchrl_ahrs.conf", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     try:
-        train(cfg, Path(HydraConfig.get().runtime.output_dir))
-    except ConfigError as error:
+        if cfg.get("resume"):
+            run_dir = Path(cfg.resume)
+            cfg = load_saved_config(run_dir, HydraConfig.get().overrides.task)
+        else:
+            run_dir = Path(HydraConfig.get().runtime.output_dir)
+        train(cfg, run_dir)
+    except (ConfigError, FileNotFoundError, FloatingPointError) as error:
         print(f"error: {error}", file=sys.stderr)
         sys.exit(2)
 

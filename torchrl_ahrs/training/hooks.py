@@ -182,3 +182,39 @@ def loss_metrics(optim_steps: int, average_losses: TensorDictBase | None) -> dic
     if average_losses is None:
         return None
     return {f"train/{key}": value.mean().item() for key, value in average_losses.items() if value.numel()}
+
+
+class FiniteGuard:
+    """Stops training with a clear error when a batch carries NaN or inf in observations or rewards.
+
+    A single non-finite reward poisons every advantage through the GAE recursion and the running
+    observation statistics forever after, so the run is stopped at the first bad batch, naming the
+    entry and how many values were bad, instead of training on garbage.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> guard = FiniteGuard(["a"])
+        >>> batch = TensorDict({"observation": torch.zeros(2, 3),
+        ...                     "next": {"reward": {"a": torch.tensor([[1.0], [float("nan")]])}}}, [2])
+        >>> guard(batch)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        FloatingPointError: 1 non-finite value(s) in ('next', 'reward', 'a') of the collected batch; ...
+    """
+
+    def __init__(self, components: Sequence[str], observation_key: str = "observation"):
+        self.keys = [observation_key, ("next", observation_key)] + [("next", "reward", name) for name in components]
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        for key in self.keys:
+            values = batch.get(key, None)
+            if values is None:
+                continue
+            bad = (~torch.isfinite(values)).sum().item()
+            if bad:
+                raise FloatingPointError(
+                    f"{bad} non-finite value(s) in {key} of the collected batch; the environment produced NaN/inf "
+                    "(check the task's reward terms and physics stability); training stopped before using it"
+                )
+        return batch
