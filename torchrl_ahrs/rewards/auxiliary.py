@@ -1,0 +1,344 @@
+"""The auxiliary reward: one extra reward leaf computed by sandbox-accepted code (paper, section IV-D).
+
+An auxiliary reward file (written by an LLM with ``python -m torchrl_ahrs.generate_aux``, or one of the
+shipped files in ``torchrl_ahrs/rewards/aux_rewards/``) defines one function::
+
+    def compute_aux_reward(obs):   # obs: dict[str, Tensor [N, ...]]  ->  Tensor [N]
+
+``obs`` holds everything the environment wrote for the step, flattened to string keys (see
+:func:`aux_inputs`): ``"observation"`` [N, D] and any other observation entry by name (e.g.
+``"height"``, ``"desired_goal"``), ``"action"`` [N, A] (the action that led to this state),
+``"reward.<c>"`` [N] for every reward leaf including ``"reward.total"``, and ``"info.<key>"`` [N] for the
+environment's info entries (e.g. ``"info.reward_forward"``). Booleans and integers arrive as float32;
+trailing singleton dimensions are squeezed, so scalar-per-env entries are [N].
+
+:class:`AuxiliaryReward` evaluates it on the whole batch at once and writes::
+
+    ("next", "reward", "aux")        = scale * compute_aux_reward(obs)        [N, 1]
+    ("next", "reward", "total_aux")  = ("next", "reward", "total") + aux      [N, 1]
+
+With ``aux`` in the component list the task has K + 1 components (AHRS, HD-PPO-A); PPO-A trains one
+head on ``total_aux``. ``total`` stays the native reward, so every method reports comparable returns.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs.transforms import Transform
+
+from torchrl_ahrs.rewards.components import TOTAL
+
+AUX = "aux"
+TOTAL_AUX = "total_aux"
+AUX_FUNCTION = "compute_aux_reward"
+SHIPPED_DIR = Path(__file__).with_name("aux_rewards")
+_SKIPPED_ROOTS = ("episode_reward",)  # RewardSum accumulators: not part of one step
+
+log = logging.getLogger("torchrl_ahrs.aux")
+
+AuxFn = Callable[[dict[str, torch.Tensor]], torch.Tensor]
+
+
+def aux_inputs(
+    action: torch.Tensor | None, next_tensordict: TensorDictBase, reward_key: str = "reward"
+) -> dict[str, torch.Tensor]:
+    """The ``obs`` argument of ``compute_aux_reward``: every leaf of one step as ``{name: [*B, ...]}``.
+
+    Nested keys are joined with ``"."`` (``("info", "reward_ctrl")`` → ``"info.reward_ctrl"``); leaves are
+    float32 with a trailing singleton dimension squeezed; ``episode_reward`` accumulators are left out.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> step = TensorDict({"observation": torch.zeros(2, 3), "reward": {"total": torch.ones(2, 1)},
+        ...                    "done": torch.zeros(2, 1, dtype=torch.bool)}, [2])
+        >>> {k: tuple(v.shape) for k, v in aux_inputs(torch.zeros(2, 1), step).items()}
+        {'observation': (2, 3), 'reward.total': (2,), 'done': (2,), 'action': (2, 1)}
+    """
+    batch_ndim = next_tensordict.batch_dims
+    inputs: dict[str, torch.Tensor] = {}
+    for key, value in next_tensordict.items(include_nested=True, leaves_only=True):
+        key = (key,) if isinstance(key, str) else tuple(key)
+        if key[0] in _SKIPPED_ROOTS or not isinstance(value, torch.Tensor):
+            continue
+        if value.ndim == batch_ndim + 1 and value.shape[-1] == 1:
+            value = value.squeeze(-1)  # [*B, 1] → [*B]
+        inputs[".".join(key)] = value.to(torch.float32)
+    if action is not None:
+        inputs["action"] = action.to(torch.float32)
+    return inputs
+
+
+def flatten_inputs(inputs: Mapping[str, torch.Tensor], batch_ndim: int) -> dict[str, torch.Tensor]:
+    """``{name: [*B, ...]}`` → ``{name: [prod(B), ...]}`` (a rollout [N, T] becomes one batch of N·T rows)."""
+    return {name: value.reshape(-1, *value.shape[batch_ndim:]) for name, value in inputs.items()}
+
+
+def check_aux_output(output: Any, batch_size: int) -> torch.Tensor:
+    """The function's output as float32 ``[N]``; raises ``ValueError`` on a wrong shape or a non-finite value."""
+    if not isinstance(output, torch.Tensor):
+        raise ValueError(f"{AUX_FUNCTION} returned {type(output).__name__}, expected a tensor of shape [{batch_size}]")
+    if output.shape == (batch_size, 1):
+        output = output.squeeze(-1)
+    if tuple(output.shape) != (batch_size,):
+        raise ValueError(f"{AUX_FUNCTION} returned shape {tuple(output.shape)}, expected ({batch_size},)")
+    output = output.to(torch.float32)
+    if not torch.isfinite(output).all():
+        bad = int((~torch.isfinite(output)).sum())
+        raise ValueError(f"{AUX_FUNCTION} returned {bad} non-finite value(s) (NaN or inf)")
+    return output
+
+
+def file_digest(path: str | Path) -> str:
+    """sha256 of the file's bytes (printed at start and checked when worker processes load it)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def shipped_aux_path(task_name: str) -> Path:
+    """The project's auxiliary reward for ``task_name`` (``aux_rewards/<task>.py``)."""
+    path = SHIPPED_DIR / f"{task_name}.py"
+    if not path.is_file():
+        shipped = sorted(p.stem for p in SHIPPED_DIR.glob("*.py") if p.stem != "__init__")
+        raise FileNotFoundError(f"no shipped auxiliary reward for task {task_name!r} (shipped: {', '.join(shipped)})")
+    return path
+
+
+def load_aux_function(path: str | Path, expected_digest: str | None = None) -> AuxFn:
+    """Loads ``compute_aux_reward`` from ``path`` through the sandbox's static gate and restricted execution.
+
+    Raises:
+        ValueError: the sandbox refuses the code, the function is missing, or the file changed since it
+            was validated (``expected_digest``).
+    """
+    from torchrl_ahrs.llm.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
+
+    path = Path(path)
+    source = path.read_bytes()
+    if expected_digest is not None and hashlib.sha256(source).hexdigest() != expected_digest:
+        raise ValueError(f"{path} changed after it was validated (digest mismatch)")
+    functions = load_functions(source.decode(), str(path))
+    if AUX_FUNCTION not in functions:
+        raise ValueError(f"{path} defines no function {AUX_FUNCTION}(obs); it defines {sorted(functions)}")
+    return functions[AUX_FUNCTION]
+
+
+class AuxiliaryReward(Transform):
+    """Writes ``("reward", "aux")`` = ``scale * fn(obs)`` and ``("reward", "total_aux")`` = total + aux.
+
+    Append it after :class:`~torchrl_ahrs.rewards.RewardComponents` (the reward must already be a tree)
+    and before ``RewardSum``. ``fn`` gets the step as ``{name: [N, ...]}`` (:func:`aux_inputs`) and must
+    return ``[N]`` (or ``[N, 1]``) finite values; anything else stops training with a ``ValueError``.
+
+    Args:
+        fn: ``compute_aux_reward(obs: dict[str, Tensor [N, ...]]) -> Tensor [N]``.
+        scale: factor applied to ``fn``'s output.
+        source: where ``fn`` came from (file and digest), for logs.
+        reward_key: the reward tree's root (default ``"reward"``).
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> aux = AuxiliaryReward(lambda obs: -obs["observation"].norm(dim=-1), scale=0.5)
+        >>> step = TensorDict({"observation": torch.tensor([[3.0, 4.0], [0.0, 1.0]]),
+        ...                    "reward": {"total": torch.ones(2, 1)}}, [2])
+        >>> out = aux._step(TensorDict({"action": torch.zeros(2, 1)}, [2]), step)
+        >>> out["reward", "aux"].squeeze(-1).tolist(), out["reward", "total_aux"].squeeze(-1).tolist()
+        ([-2.5, -0.5], [-1.5, 0.5])
+    """
+
+    def __init__(self, fn: AuxFn, scale: float = 1.0, source: str = "<function>", reward_key: str = "reward"):
+        super().__init__(in_keys=[reward_key], out_keys=[(reward_key, AUX), (reward_key, TOTAL_AUX)])
+        self.fn = fn
+        self.scale = float(scale)
+        self.source = source
+        self.reward_key = reward_key
+
+    @classmethod
+    def from_file(cls, path: str | Path, scale: float = 1.0, expected_digest: str | None = None) -> AuxiliaryReward:
+        """Loads ``compute_aux_reward`` from a sandbox-checked file (see :func:`load_aux_function`)."""
+        fn = load_aux_function(path, expected_digest)
+        return cls(fn, scale, source=f"{path} (sha256 {file_digest(path)[:12]})")
+
+    def compute(self, action: torch.Tensor | None, next_tensordict: TensorDictBase) -> torch.Tensor:
+        """``scale * fn(obs)`` for one step: ``[*B, 1]``."""
+        batch_shape = next_tensordict.batch_size
+        inputs = flatten_inputs(aux_inputs(action, next_tensordict, self.reward_key), len(batch_shape))
+        with torch.no_grad():
+            try:
+                raw = check_aux_output(self.fn(inputs), batch_shape.numel())
+            except ValueError as error:
+                raise ValueError(f"auxiliary reward {self.source}: {error}") from error
+        return (self.scale * raw).reshape(*batch_shape, 1)  # r_aux = scale · f(obs)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        tree = next_tensordict.get(self.reward_key)
+        if not isinstance(tree, TensorDictBase):
+            raise KeyError(
+                f"AuxiliaryReward needs the reward tree ({self.reward_key!r}, ...); append RewardComponents first"
+            )
+        action = tensordict.get("action", None)
+        aux = self.compute(action, next_tensordict)
+        tree.set(AUX, aux)
+        tree.set(TOTAL_AUX, tree.get(TOTAL) + aux)  # r_total_aux = r_total + r_aux
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset
+
+    def transform_reward_spec(self, reward_spec: Composite) -> Composite:
+        tree = reward_spec[self.reward_key]
+        if not isinstance(tree, Composite):
+            raise KeyError(
+                f"AuxiliaryReward needs the reward tree ({self.reward_key!r}, ...); append RewardComponents first"
+            )
+        native = tree[TOTAL]
+        for name in (AUX, TOTAL_AUX):
+            tree[name] = Unbounded(shape=native.shape, dtype=torch.float32, device=native.device)
+        return reward_spec
+
+
+# ----------------------------------------------------------------------------------------------------
+# Config glue: which components a method trains on, which file, validation at start
+# ----------------------------------------------------------------------------------------------------
+
+AUX_MODES = (None, "branch", "total")
+
+
+def auxiliary_components(
+    method_components: Sequence[str] | None, task_components: Sequence[str], auxiliary: str | None
+) -> list[str]:
+    """The K axis of a method: its own list, else the task's (+ ``aux`` for ``branch``, ``[total_aux]`` for ``total``).
+
+    Example:
+        >>> auxiliary_components(None, ["a", "b"], "branch"), auxiliary_components(None, ["a", "b"], "total")
+        (['a', 'b', 'aux'], ['total_aux'])
+    """
+    if auxiliary not in AUX_MODES:
+        raise ValueError(f"method.auxiliary must be null, 'branch' or 'total', got {auxiliary!r}")
+    if method_components is not None:
+        return list(method_components)
+    if auxiliary == "branch":
+        return [*task_components, AUX]
+    if auxiliary == "total":
+        return [TOTAL_AUX]
+    return list(task_components)
+
+
+def aux_leaves(auxiliary: str | None) -> set[str]:
+    """Reward leaves a method may name in addition to the task's components."""
+    return {AUX, TOTAL_AUX} if auxiliary else set()
+
+
+def _select(cfg: Any, key: str, default: Any = None) -> Any:
+    node = cfg
+    for part in key.split("."):
+        if node is None or not hasattr(node, "get"):
+            return default
+        node = node.get(part)
+    return default if node is None else node
+
+
+def resolve_aux_path(cfg: Any) -> Path:
+    """``aux.path`` if given, else the task's shipped auxiliary reward."""
+    path = _select(cfg, "aux.path")
+    return Path(path) if path else shipped_aux_path(cfg.task.name)
+
+
+def collect_aux_inputs(
+    task_cfg: Mapping[str, Any], num_envs: int = 8, steps: int = 16, seed: int = 0
+) -> dict[str, torch.Tensor]:
+    """``obs`` dicts of ``num_envs · steps`` real transitions of the task under uniformly random actions."""
+    from torchrl_ahrs.envs.registry import make_env
+
+    task = {key: value for key, value in task_cfg.items() if key != "auxiliary"}
+    env = make_env(task, num_envs, seed)
+    try:
+        with torch.no_grad():
+            rollout = env.rollout(steps, break_when_any_done=False)  # [N, T]
+    finally:
+        env.close()
+    inputs = aux_inputs(rollout.get("action"), rollout.get("next"))
+    return flatten_inputs(inputs, rollout.batch_dims)
+
+
+def validate_aux_file(
+    path: str | Path, task_cfg: Mapping[str, Any], num_envs: int = 8, steps: int = 16, seed: int = 0
+) -> Any:
+    """All sandbox gates for an auxiliary reward file, the child run on real transitions of the task.
+
+    Returns the sandbox's ``Verdict`` (``ok``, ``reasons``).
+    """
+    import tempfile
+
+    from torchrl_ahrs.llm.sandbox import Verdict, check_source, validate_in_child
+
+    path = Path(path)
+    try:
+        source = path.read_text()
+    except (OSError, UnicodeDecodeError) as error:
+        return Verdict(False, [f"cannot read {path}: {error}"])
+    verdict = check_source(source, str(path))
+    if not verdict.ok:
+        return verdict
+    if AUX_FUNCTION not in verdict.functions:
+        return Verdict(False, [f"no function named {AUX_FUNCTION}(obs); found {verdict.functions}"])
+    inputs = collect_aux_inputs(task_cfg, num_envs, steps, seed)
+    with tempfile.TemporaryDirectory() as scratch:
+        inputs_path = Path(scratch) / "inputs.pt"
+        torch.save(inputs, inputs_path)
+        return validate_in_child(path, "aux", inputs_path=inputs_path)
+
+
+def task_with_auxiliary(cfg: Any, check: bool = True) -> dict[str, Any]:
+    """The task config as a plain dict; when the method uses the auxiliary reward, with an ``auxiliary`` entry.
+
+    ``auxiliary = {"path", "digest", "scale"}`` tells :func:`maybe_add_auxiliary` (called by ``make_env``)
+    to append :class:`AuxiliaryReward`. With ``check`` the file goes through every sandbox gate on real
+    transitions of the task first, and the run logs which file and digest it uses.
+
+    Raises:
+        torchrl_ahrs.config.ConfigError: the file is missing or refused (every reason in the message).
+    """
+    from omegaconf import OmegaConf
+
+    from torchrl_ahrs.config import ConfigError
+
+    task = OmegaConf.to_container(cfg.task, resolve=True)
+    mode = _select(cfg, "method.auxiliary")
+    if not mode:
+        return task
+    try:
+        path = resolve_aux_path(cfg)
+    except FileNotFoundError as error:
+        raise ConfigError(str(error)) from error
+    if not path.is_file():
+        raise ConfigError(f"aux.path: no file {path}")
+    digest = file_digest(path)
+    if check:
+        verdict = validate_aux_file(path, task, seed=int(_select(cfg, "seed", 0)))
+        if not verdict.ok:
+            raise ConfigError(
+                f"auxiliary reward {path} refused by the sandbox; training not started:\n  - "
+                + "\n  - ".join(verdict.reasons)
+            )
+        log.info(
+            "auxiliary reward: %s (sha256 %s), mode %s, scale %s", path, digest, mode, _select(cfg, "aux.scale", 1.0)
+        )
+    task["auxiliary"] = {"path": str(path), "digest": digest, "scale": float(_select(cfg, "aux.scale", 1.0))}
+    return task
+
+
+def maybe_add_auxiliary(env: Any, task_cfg: Mapping[str, Any]) -> Any:
+    """Appends :class:`AuxiliaryReward` to ``env`` (a ``TransformedEnv``) when ``task_cfg`` has an ``auxiliary`` entry."""
+    spec = task_cfg.get("auxiliary")
+    if spec:
+        env.append_transform(AuxiliaryReward.from_file(spec["path"], spec.get("scale", 1.0), spec.get("digest")))
+    return env
