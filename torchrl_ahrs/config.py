@@ -8,6 +8,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.envs.registry import available_tasks
+from torchrl_ahrs.rewards.auxiliary import aux_leaves, auxiliary_components
 
 SECRET_MARKERS = ("api_key", "apikey", "token", "secret", "password")
 REDACTED = "<redacted>"
@@ -18,9 +19,9 @@ class ConfigError(ValueError):
 
 
 def resolve_components(cfg: DictConfig) -> list[str]:
-    """The reward leaves forming the K axis: the method's list, or the task's when it says null."""
-    components = cfg.method.get("components")
-    return list(components if components is not None else cfg.task.components)
+    """The reward leaves forming the K axis: the method's list, or the task's when it says null
+    (+ ``aux`` when ``method.auxiliary: branch``; ``[total_aux]`` when ``method.auxiliary: total``)."""
+    return auxiliary_components(cfg.method.get("components"), cfg.task.components, cfg.method.get("auxiliary"))
 
 
 def validate_config(cfg: DictConfig) -> None:
@@ -35,6 +36,7 @@ def validate_config(cfg: DictConfig) -> None:
         "trainer.num_epochs": trainer.num_epochs,
         "trainer.num_minibatches": trainer.num_minibatches,
         "trainer.workers": trainer.workers,
+        "trainer.torch_threads": trainer.torch_threads,
         "scheduler.interval": cfg.scheduler.interval,
         "scheduler.history_length": cfg.scheduler.history_length,
     }
@@ -59,7 +61,7 @@ def validate_config(cfg: DictConfig) -> None:
     if not 0 <= cfg.ppo.gamma <= 1 or not 0 <= cfg.ppo.lmbda <= 1:
         raise ConfigError(f"ppo.gamma and ppo.lmbda must lie in [0, 1], got {cfg.ppo.gamma}, {cfg.ppo.lmbda}")
     components = resolve_components(cfg)
-    known = set(cfg.task.components) | {"total"}
+    known = set(cfg.task.components) | {"total"} | aux_leaves(cfg.method.get("auxiliary"))
     unknown = [name for name in components if name not in known]
     if unknown:
         raise ConfigError(

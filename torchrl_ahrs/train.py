@@ -34,6 +34,7 @@ from torchrl.trainers import Trainer, UpdateWeights
 
 from torchrl_ahrs.config import ConfigError, load_saved_config, resolve_components, save_config, validate_config
 from torchrl_ahrs.envs.registry import make_env
+from torchrl_ahrs.rewards.auxiliary import task_with_auxiliary
 from torchrl_ahrs.scheduling import build_scheduler
 from torchrl_ahrs.scheduling.scheduler import DECISIONS_FILE
 from torchrl_ahrs.training.checkpoint import (
@@ -65,7 +66,7 @@ def make_collector(cfg: DictConfig, policy, components: list[str], remaining_fra
     """One process (``sync``) or ``workers`` processes each stepping ``num_envs / workers`` envs."""
     trainer_cfg = cfg.trainer
     frames_per_batch = trainer_cfg.num_envs * trainer_cfg.rollout_steps
-    task = OmegaConf.to_container(cfg.task, resolve=True)
+    task = task_with_auxiliary(cfg, check=False)  # checked once in train()
     if trainer_cfg.collector == "sync":
         env = make_env(task, trainer_cfg.num_envs, cfg.seed, components=components)
         return Collector(
@@ -104,8 +105,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if resumed is None:
         save_config(cfg, run_dir / "config.yaml")
     torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.trainer.torch_threads)
     components = resolve_components(cfg)
-    task = OmegaConf.to_container(cfg.task, resolve=True)
+    task = task_with_auxiliary(cfg)  # + the sandbox-checked auxiliary reward when the method uses one
     log.info("task %s, method %s, K=%d components %s", task["name"], cfg.method.name, len(components), components)
 
     # --- networks: shapes from a one-env probe of the task -----------------------------------------
