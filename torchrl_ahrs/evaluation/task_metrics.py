@@ -1,0 +1,72 @@
+"""Task metrics beyond the return: what "doing the task well" means for each robot, per step.
+
+A probe reads the base environment right after a step (before any reset) and returns
+``{metric: Tensor [N]}``; :func:`~torchrl_ahrs.evaluation.episodes.run_episodes` averages each metric
+over an episode's steps and also keeps its value at the episode's last step (``<metric>_final``).
+
+=============  =====================================================================================
+cassie         ``lin_vel_error`` ‖cmd_xy − v_xy‖ (m/s, base frame), ``ang_vel_error`` |cmd_yaw − ω_z| (rad/s)
+point_reach    ``distance`` ‖p* − p‖ to the target (m)
+quadcopter     ``distance`` ‖p* − p‖ to the hover point (m)
+hands          ``success_rate``: share of episodes with a positive ``success`` return (any task that
+               has a ``success`` component: shadow_hand, leap_cube); see :func:`episode_metrics`
+=============  =====================================================================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import torch
+from torchrl.envs import EnvBase
+
+StepProbe = Callable[[EnvBase], dict[str, torch.Tensor]]
+
+
+def cassie_tracking_errors(env) -> dict[str, torch.Tensor]:
+    """Velocity-command tracking errors ``[N]`` of a :class:`~torchrl_ahrs.envs.cassie.CassieEnv`."""
+    lin_vel, ang_vel = env._base_velocities()  # base-frame [N, 3] each, the same read-out the reward uses
+    return {
+        "lin_vel_error": torch.linalg.vector_norm(env.commands[:, :2] - lin_vel[:, :2], dim=-1),  # ‖c_xy − v_xy‖
+        "ang_vel_error": (env.commands[:, 2] - ang_vel[:, 2]).abs(),  # |c_yaw − ω_z|
+    }
+
+
+def point_reach_distance(env) -> dict[str, torch.Tensor]:
+    """Distance ``[N]`` of the point mass to its target."""
+    return {"distance": torch.linalg.vector_norm(env.target - env.qpos[:, :2], dim=-1)}  # ‖p* − p‖
+
+
+def quadcopter_distance(env) -> dict[str, torch.Tensor]:
+    """Distance ``[N]`` of the quadcopter to its hover point."""
+    return {"distance": torch.linalg.vector_norm(env.target - env.qpos[:, :3], dim=-1)}  # ‖p* − p‖
+
+
+STEP_PROBES: dict[str, StepProbe] = {
+    "cassie": cassie_tracking_errors,
+    "point_reach": point_reach_distance,
+    "quadcopter": quadcopter_distance,
+}
+
+
+def step_probe(task_name: str) -> StepProbe | None:
+    """The per-step metric probe of ``task_name``, or None when the task has none.
+
+    Example:
+        >>> step_probe("cassie").__name__, step_probe("ant_v5")
+        ('cassie_tracking_errors', None)
+    """
+    return STEP_PROBES.get(task_name)
+
+
+def episode_metrics(returns: Mapping[str, torch.Tensor]) -> dict[str, float]:
+    """Metrics that follow from the per-episode component returns ``{c: [M]}``.
+
+    Example:
+        >>> episode_metrics({"success": torch.tensor([0.0, 250.0, 500.0, 0.0])})
+        {'success_rate': 0.5}
+    """
+    metrics = {}
+    if "success" in returns:
+        metrics["success_rate"] = (returns["success"] > 0).float().mean().item()  # P(at least one success step)
+    return metrics
