@@ -14,6 +14,7 @@ from typing import Any
 
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 
+from torchrl_ahrs.rewards.auxiliary import maybe_add_auxiliary
 from torchrl_ahrs.rewards.components import TOTAL, component_reward_keys, episode_return_keys
 
 TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
@@ -71,6 +72,8 @@ def make_env(
         seed: environment seed.
         components: the reward leaves that form the K axis; default ``task_cfg["components"]``.
             ``["total"]`` gives plain PPO's single head.
+            An ``auxiliary`` entry in ``task_cfg`` (``{"path", "digest", "scale"}``, see
+            :func:`torchrl_ahrs.rewards.auxiliary.task_with_auxiliary`) appends the auxiliary reward.
 
     Returns:
         A ``TransformedEnv`` with batch size ``[N]`` whose ``next`` tensordict holds
@@ -87,6 +90,8 @@ def make_env(
     components = list(components if components is not None else task_cfg["components"])
     tracked = components + ([TOTAL] if TOTAL not in components else [])
     env = get_builder(task_cfg["name"])(task_cfg, num_envs, seed, device)
+    if task_cfg.get("auxiliary"):  # ("reward", "aux") and ("reward", "total_aux") from sandboxed code
+        env = maybe_add_auxiliary(env if isinstance(env, TransformedEnv) else TransformedEnv(env), task_cfg)
     missing = [key for key in component_reward_keys(tracked) if key not in env.full_reward_spec.keys(True, True)]
     if missing:
         raise ValueError(f"task {task_cfg['name']!r} does not write the reward leaves {missing}")
