@@ -8,7 +8,8 @@ Each request takes the next step of ``server.script`` (the last step repeats whe
 * ``("slow", seconds)``: waits, then answers ``~[1]~`` (past a client timeout);
 * ``("garbage", body)``: HTTP 200 with a non-JSON body;
 * ``("truncated", text)``: HTTP 200 with the first half of a valid completion (a correct Content-Length);
-* ``("reset", text)``: headers and part of the body, then a TCP reset (RST) in the middle of the response.
+* ``("reset", text)``: headers and part of the body, then a TCP reset (RST) in the middle of the response;
+* ``("echo_key", status)``: an error that quotes the request's API key back (as OpenAI's HTTP 401 does).
 
 ``free_port()`` is a port with no listener (the "server down" case).
 
@@ -100,6 +101,10 @@ class ScriptedServer:
                     return self._send(step[1], json.dumps(error).encode())
                 if kind == "http":
                     return self._send(step[1], step[3], step[2])
+                if kind == "echo_key":
+                    key = (self.headers.get("Authorization") or "").removeprefix("Bearer ")
+                    error = {"message": f"Incorrect API key provided: {key}.", "type": "invalid_request_error"}
+                    return self._send(step[1], json.dumps({"error": {**error, "code": "invalid_api_key"}}).encode())
                 if kind == "garbage":
                     return self._send(200, step[1].encode())
                 payload = completion_body(step[1], model)
