@@ -67,8 +67,8 @@ def frames_per_second(batch_times: list[float], frames_per_batch: int, warmup: i
         >>> frames_per_second([0.0, 5.0, 6.0, 7.0], frames_per_batch=100, warmup=1)
         100.0
     """
-    if len(batch_times) <= warmup:
-        raise ValueError(f"need more than {warmup} batches to time, got {len(batch_times)}")
+    if len(batch_times) <= warmup + 1:
+        raise ValueError(f"need more than {warmup + 1} batches to time, got {len(batch_times)}")
     return frames_per_batch * (len(batch_times) - 1 - warmup) / (batch_times[-1] - batch_times[warmup])
 
 

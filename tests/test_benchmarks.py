@@ -1,0 +1,82 @@
+"""The benchmark scripts still run end to end (tiny arguments, no timing assertions)."""
+
+import runpy
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def run_script(name: str, argv: list[str], monkeypatch, capsys) -> str:
+    """Runs ``benchmarks/<name>`` as ``__main__`` in this process with ``argv``; returns its stdout."""
+    monkeypatch.setattr(sys, "argv", [name, *argv])
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    runpy.run_path(str(BENCHMARKS / name), run_name="__main__")
+    return capsys.readouterr().out
+
+
+def test_bench_gae_prints_both_times_and_the_ratio(monkeypatch, capsys):
+    out = run_script(
+        "bench_gae.py", ["--sizes", "4x8", "--components", "3", "--hidden", "8", "--repeat", "2"], monkeypatch, capsys
+    )
+    rows = [line for line in out.splitlines() if line.strip().startswith("4x8")]
+    assert [row.split()[1] for row in rows] == ["with", "precomputed"]
+    assert all(row.endswith("x") for row in rows)
+
+
+def test_bench_gae_precomputed_values_give_the_same_advantage():
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        from bench_gae import make_batches
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    import torch
+    from tensordict.nn import TensorDictModule
+
+    from torchrl_ahrs.value import MultiHeadCritic, WeightedMultiGAE
+
+    multi, single, components = make_batches(3, 7, 4, 5)
+    # the one-reward batch carries the sum of the component rewards (what TorchRL's GAE would see)
+    stacked = torch.cat([multi["next", "reward", name] for name in components], -1)
+    torch.testing.assert_close(single["next", "reward"], stacked.sum(-1, keepdim=True))
+    critic = TensorDictModule(MultiHeadCritic(5, 4, [8]), in_keys=["observation"], out_keys=["state_value"])
+    with_critic = WeightedMultiGAE(components, gamma=0.9, lmbda=0.8, value_network=critic)(multi)["advantage"].clone()
+    precomputed = WeightedMultiGAE(components, gamma=0.9, lmbda=0.8, value_network=None)(multi)["advantage"]
+    torch.testing.assert_close(precomputed, with_critic)
+
+
+def test_frames_per_second_counts_whole_iterations_after_warmup():
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        from bench_pipeline import frames_per_second
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    # batches delivered at t = 0, 10 (slow warm-up), 11, 12, 13: three 1 s iterations of 50 frames
+    assert frames_per_second([0.0, 10.0, 11.0, 12.0, 13.0], frames_per_batch=50, warmup=1) == 50.0
+    with pytest.raises(ValueError):
+        frames_per_second([0.0, 1.0], frames_per_batch=50, warmup=1)
+
+
+@pytest.mark.slow
+def test_bench_pipeline_runs_ours_and_the_reference(monkeypatch, capsys):
+    pytest.importorskip("gymnasium.envs.mujoco")
+    argv = ["--frames", "16", "--num-envs", "2", "--rollout-steps", "8", "--hidden", "8", "--epochs", "1"]
+    argv += ["--minibatches", "2", "--ref-workers", "2", "--methods", "ppo", "--threads", "1"]
+    out = run_script("bench_pipeline.py", argv, monkeypatch, capsys)
+    assert "reference (TorchRL sota PPO" in out
+    assert "ratio ours/reference" in out
+
+
+def test_bench_env_throughput_runs(monkeypatch, capsys):
+    argv = ["--num-envs", "2", "--steps", "4", "--threads", "1", "--rounds", "1", "--tasks", "ant"]
+    out = run_script("bench_env_throughput.py", argv, monkeypatch, capsys)
+    assert "ratio ours / EnvPool" in out and "task ant" in out
+
+
+def test_bench_envpool_tasks_runs(monkeypatch, capsys):
+    out = run_script(
+        "bench_envpool_tasks.py", ["--tasks", "ant_v5", "--num-envs", "2", "--steps", "8"], monkeypatch, capsys
+    )
+    assert out.splitlines()[-1].split()[0] == "ant_v5"
