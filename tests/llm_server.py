@@ -68,10 +68,10 @@ def free_port() -> int:
 
 
 class ScriptedServer:
-    """The scripted server (see the module docstring); ``requests`` records each body, auth header and
-    arrival time (``time.monotonic()``)."""
+    """The scripted server (see the module docstring) on ``port`` (0 = any free one); ``requests`` records
+    each body, auth header and arrival time (``time.monotonic()``)."""
 
-    def __init__(self):
+    def __init__(self, port: int = 0):
         self.script: list[tuple] = [("ok", "~[1]~")]
         self.requests: list[dict] = []
         server = self
@@ -133,7 +133,7 @@ class ScriptedServer:
                 self.end_headers()
                 self.wfile.write(payload)
 
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", port), Handler)
         self.httpd.daemon_threads = True
         self.port = self.httpd.server_address[1]
         self.api_base = f"http://127.0.0.1:{self.port}/v1"
