@@ -94,7 +94,7 @@ class TrackingCamera:
         (48, 64, 3)
     """
 
-    def __init__(self, env, width: int = 320, height: int = 240, env_index: int = 0, distance: float = 2.0):
+    def __init__(self, env, width: int = 320, height: int = 240, env_index: int = 0, distance: float = 1.2):
         import mujoco
 
         self.env, self.env_index = env, env_index
