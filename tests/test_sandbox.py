@@ -152,3 +152,29 @@ def test_aux_kind_validates_reward_shape():
     report = validate(bad, "aux")
     assert not report["ok"] and "output shape" in report["reasons"][0]
     assert "no function named compute_aux_reward" in validate(HEAD + "    return mean_returns\n", "aux")["reasons"][0]
+
+
+def test_tensor_literals_work_inside_the_sandbox(tmp_path):
+    # torch.tensor([...]) imports torch submodules from C through the frame's __import__
+    path = tmp_path / "rules.py"
+    path.write_text(
+        textwrap.dedent(
+            '''
+            import torch
+
+
+            def literal_offset(mean_returns, var_returns, history, previous_weights):
+                """Literal Offset
+
+                Adds a constant built from a literal.
+
+                math: s_k = mu_k + 1
+                """
+                return mean_returns + torch.tensor([1.0])
+            '''
+        )
+    )
+    verdict = check_file(path, "rule")
+    assert verdict.ok, verdict.reasons
+    (rule,) = load_functions(path.read_text()).values()
+    assert rule(torch.tensor([1.0, 2.0]), None, None, None).tolist() == [2.0, 3.0]

@@ -1,6 +1,7 @@
 """End-to-end training: the return goes up, metrics land in the run directory, bad configs fail clearly."""
 
 import csv
+import re
 import subprocess
 import sys
 
@@ -90,3 +91,52 @@ def test_command_line_errors_are_one_clear_line(tmp_path, override, expected):
     assert result.returncode != 0
     assert expected in result.stderr
     assert "Traceback" not in result.stderr
+
+
+FIXED_FOUR = '''import torch
+
+
+def four_components(mean_returns, var_returns, history, previous_weights):
+    """Four Fixed
+
+    Assumes a task with four components.
+
+    math: s = [1, 2, 3, 4]
+    """
+    return torch.tensor([1.0, 2.0, 3.0, 4.0])
+'''
+
+HOSTILE = '''import os
+
+
+def leak(mean_returns, var_returns, history, previous_weights):
+    """Leak
+
+    Reads the environment.
+
+    math: none
+    """
+    return os.environ
+'''
+
+
+@pytest.mark.parametrize(
+    "source, expected",
+    [
+        (FIXED_FOUR, "sandbox refused.*shape"),
+        (HOSTILE, "sandbox refused"),
+        ("def broken(:\n", "scheduler setup failed"),
+    ],
+)
+def test_rule_files_that_cannot_serve_the_task_fail_at_start(tmp_path, source, expected):
+    rules = tmp_path / "rules.py"
+    rules.write_text(source)
+    cfg = make_cfg("task=point_reach", "method=hdppo", f"scheduler.rules={rules}", "trainer.total_frames=1024", *FAST)
+    with pytest.raises(ConfigError, match=re.compile(expected, re.S)):
+        train(cfg, tmp_path / "run")
+
+
+def test_unknown_logger_backend_is_named():
+    cfg = make_cfg("task=point_reach", "logger.backends=[csv,carrier_pigeon]")
+    with pytest.raises(ConfigError, match="carrier_pigeon"):
+        validate_config(cfg)

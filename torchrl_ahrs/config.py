@@ -9,6 +9,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.rewards.auxiliary import aux_leaves, auxiliary_components
+from torchrl_ahrs.training.loggers import BACKENDS
 
 SECRET_MARKERS = ("api_key", "apikey", "token", "secret", "password")
 REDACTED = "<redacted>"
@@ -45,6 +46,9 @@ def validate_config(cfg: DictConfig) -> None:
     for name, value in positive.items():
         if not isinstance(value, int) or value < 1:
             raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    unknown_backends = [name for name in cfg.logger.backends if name not in BACKENDS]
+    if unknown_backends:
+        raise ConfigError(f"unknown logger backend(s) {unknown_backends}; accepted: {', '.join(BACKENDS)}")
     if trainer.lr <= 0:
         raise ConfigError(f"trainer.lr must be positive, got {trainer.lr}")
     if trainer.collector not in ("sync", "multi"):

@@ -28,7 +28,7 @@ from typing import Any
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.trainers import Trainer, UpdateWeights
 
@@ -171,7 +171,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     trainer.register_op("batch_process", FiniteGuard(components))
     minibatches = PPOMinibatches(estimator, cfg.trainer.num_minibatches, seed=cfg.seed)
     minibatches.register(trainer)
-    scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
+    scheduler = make_scheduler(cfg, estimator, components, run_dir, logger)
     scheduler.register(trainer, "rule_scheduler")
     ObservationNormUpdate(obs_norm).register(trainer)
     lr_decay = LinearLRDecay(optimizer, cfg.trainer.total_frames)
@@ -216,6 +216,27 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     checkpoint.save()
     log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
     return dict(returns_log.latest)
+
+
+def make_scheduler(cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run_dir: Path, logger):
+    """``build_scheduler`` with every rule tried once on K-shaped statistics, so a rule file that
+    cannot serve this task fails at start as a :class:`ConfigError` rather than at the first decision."""
+    try:
+        scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
+    except (ValueError, KeyError, FileNotFoundError, ImportError, SyntaxError) as error:
+        raise ConfigError(f"scheduler setup failed: {error}") from error
+    num_components = len(components)
+    statistics = (torch.linspace(-1.0, 1.0, num_components), torch.ones(num_components))
+    history = torch.zeros(cfg.scheduler.history_length, num_components)
+    misfits = []
+    for rule in scheduler.repository.rules:
+        try:
+            rule.scores(*statistics, history, estimator.weights.clone())
+        except Exception as error:  # a rule file is user input: any failure is a misfit, reported by name
+            misfits.append(f"{rule.key}: {error}")
+    if misfits:
+        raise ConfigError(f"rules that do not fit K={num_components} components {components}: " + "; ".join(misfits))
+    return scheduler
 
 
 def count_lines(path: Path) -> int:

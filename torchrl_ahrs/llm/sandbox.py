@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import ast
 import builtins
+import importlib
 import json
 import math
 import os
@@ -88,10 +89,16 @@ FORBIDDEN_NAMES = frozenset(name for name in dir(builtins) if name not in SAFE_B
 
 
 def _restricted_import(name, globals=None, locals=None, fromlist=(), level=0):  # noqa: A002
-    """``__import__`` for sandboxed code: only the allow-listed modules, nothing else."""
-    if level != 0 or name not in ALLOWED_MODULES:
+    """``__import__`` for sandboxed code: the allow-listed modules and their own submodules.
+
+    Submodules are needed because torch's C code imports e.g. ``torch.storage`` through the calling
+    frame's ``__import__`` (``torch.tensor([1.0])`` does); the code itself cannot name them, since the
+    static check accepts only ``import math|torch|numpy``.
+    """
+    if level != 0 or name.split(".")[0] not in ALLOWED_MODULES:
         raise ImportError(f"import of {name!r} is not allowed in the sandbox")
-    return ALLOWED_MODULES[name]
+    module = importlib.import_module(name)
+    return module if fromlist else ALLOWED_MODULES[name.split(".")[0]]
 
 
 _ALLOWED_NODES = (
