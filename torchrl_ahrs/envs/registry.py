@@ -81,8 +81,8 @@ def make_env(
 
     Example:
         >>> from torchrl_ahrs.envs import load_task_config, make_env
-        >>> env = make_env(load_task_config("ant_v5"), num_envs=2)  # doctest: +SKIP
-        >>> env.rollout(3)["next", "reward", "forward"].shape  # doctest: +SKIP
+        >>> env = make_env(load_task_config("ant_v5"), num_envs=2)
+        >>> env.rollout(3)["next", "reward", "forward"].shape
         torch.Size([2, 3, 1])
     """
     if num_envs < 1:
