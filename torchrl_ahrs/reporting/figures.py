@@ -1,0 +1,105 @@
+"""PNG figures of a sweep (matplotlib, Agg backend): learning curves, weight and rule timelines,
+per-component final returns. Every function writes one file and returns its path."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display on a server or in CI
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from torchrl_ahrs.reporting.runs import Run, method_rank  # noqa: E402
+from torchrl_ahrs.reporting.stats import mean_band, mean_std  # noqa: E402
+
+
+def _by_method(runs: list[Run]) -> dict[str, list[Run]]:
+    grouped: dict[str, list[Run]] = defaultdict(list)
+    for run in runs:
+        grouped[run.method].append(run)
+    return dict(sorted(grouped.items(), key=lambda item: method_rank(item[0])))
+
+
+def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "return/total") -> Path:
+    """``scalar`` against frames for one task: per method the mean over its finished seeds (line) and
+    ± one std over seeds (band), curves interpolated onto a common frame grid."""
+    figure, axis = plt.subplots(figsize=(6.4, 4.0))
+    for method, group in _by_method([r for r in runs if r.ok and scalar in r.curves]).items():
+        grid, mean, std = mean_band([run.curves[scalar] for run in group])
+        if grid.size == 0:
+            continue
+        line = axis.plot(grid, mean, label=f"{method} (n={len(group)})")[0]
+        axis.fill_between(grid, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+    axis.set(title=f"{task}: {scalar} (mean ± std over seeds)", xlabel="frames", ylabel="episode return")
+    axis.grid(alpha=0.3)
+    if axis.get_legend_handles_labels()[0]:
+        axis.legend(fontsize="small")
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+    return path
+
+
+def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
+    """For each scheduled method (one with ``weight/<c>`` curves and scheduler decisions): the weight of
+    every component against frames (mean over seeds, band = std), and below it the rule each seed's
+    scheduler applied at each decision (one marker per decision, seeds offset vertically)."""
+    scheduled = {m: g for m, g in _by_method([r for r in runs if r.scheduled]).items()}
+    if not scheduled:
+        return None
+    figure, axes = plt.subplots(
+        2, len(scheduled), figsize=(4.2 * len(scheduled), 5.6), squeeze=False, sharex="col", height_ratios=[2, 1]
+    )
+    for column, (method, group) in enumerate(scheduled.items()):
+        weight_axis, rule_axis = axes[0, column], axes[1, column]
+        components = [name for name in group[0].curves if name.startswith("weight/")]
+        for name in components:
+            grid, mean, std = mean_band([run.curves[name] for run in group if name in run.curves])
+            if grid.size:
+                line = weight_axis.plot(grid, mean, label=name.split("/", 1)[1])[0]
+                weight_axis.fill_between(grid, mean - std, mean + std, color=line.get_color(), alpha=0.15)
+        weight_axis.set(title=f"{task} / {method}: weights", ylabel="w_k")
+        weight_axis.grid(alpha=0.3)
+        if weight_axis.get_legend_handles_labels()[0]:
+            weight_axis.legend(fontsize="x-small")
+        for offset, run in enumerate(sorted(group, key=lambda r: r.seed)):
+            applied = [d for d in run.decisions if d.get("applied") and d.get("rule_id") is not None]
+            frames = [d["frames"] for d in applied]
+            rules = np.asarray([d["rule_id"] for d in applied], dtype=float) + 0.12 * (offset - 1)
+            rule_axis.scatter(frames, rules, s=12, label=f"seed {run.seed}")
+        rule_axis.set(xlabel="frames", ylabel="rule id")
+        rule_axis.grid(alpha=0.3)
+        if rule_axis.get_legend_handles_labels()[0]:
+            rule_axis.legend(fontsize="x-small")
+    figure.tight_layout()
+    figure.savefig(path, dpi=80)
+    plt.close(figure)
+    return path
+
+
+def component_returns(task: str, runs: list[Run], path: Path) -> Path | None:
+    """Final return of each reward component (mean ± std over finished seeds), one bar group per method."""
+    finished = [r for r in runs if r.ok]
+    if not finished:
+        return None
+    components = max((r.components for r in finished), key=len)
+    grouped = _by_method(finished)
+    figure, axis = plt.subplots(figsize=(max(6.4, 1.1 * len(components) * len(grouped)), 4.0))
+    width = 0.8 / max(len(grouped), 1)
+    positions = np.arange(len(components))
+    for index, (method, group) in enumerate(grouped.items()):
+        stats = [mean_std([r.final.get(f"return/{c}", np.nan) for r in group]) for c in components]
+        means = [m for m, _ in stats]
+        stds = [0.0 if not np.isfinite(s) else s for _, s in stats]
+        axis.bar(positions + index * width, means, width, yerr=stds, label=method, capsize=2)
+    axis.set_xticks(positions + 0.4 - width / 2, components, rotation=20)
+    axis.set(title=f"{task}: final return per component (mean ± std over seeds)", ylabel="return")
+    axis.axhline(0.0, color="black", linewidth=0.6)
+    axis.legend(fontsize="small")
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+    return path

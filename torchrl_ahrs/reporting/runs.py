@@ -1,0 +1,200 @@
+"""Finding and reading the run directories of a sweep (no statistics, no plotting).
+
+A sweep directory holds one run directory per job, anywhere below it (``python -m torchrl_ahrs.sweep``
+puts them at ``<task>/<method>/seed_<seed>``). A run directory is recognised by ``config.yaml`` (written by
+``train`` at start) or ``.hydra/config.yaml`` (written by Hydra before the job runs, so a job that crashed
+before training is still found). Each run gets a status:
+
+- ``ok``: ``checkpoint.pt`` holds ``collected_frames >= trainer.total_frames`` and ``return/total`` has at
+  least one row in the final window (the last 10 % of the frame budget);
+- ``incomplete``: no checkpoint, or one from before the end of the budget (crashed, killed, still running);
+- ``too few metric rows``: finished, but no ``return/total`` row in the final window (no episode ended);
+- ``missing``: a seed of the sweep's grid with no run directory at all.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from torchrl_ahrs.reporting.stats import final_return, final_window_mask
+
+CHECKPOINT_FILE = "checkpoint.pt"
+DECISIONS_FILE = "scheduler_decisions.jsonl"
+LLM_CALLS_FILE = "llm_calls.jsonl"
+SCALARS_DIR = Path("metrics") / "scalars"
+# the paper's column order; other methods follow alphabetically
+METHOD_ORDER = ("ppo", "hdppo", "ahrs_wo_a", "ahrs", "ahrs_r", "ahrs_d", "ppo_a", "hdppo_a")
+
+
+@dataclass
+class Run:
+    """One run directory of a sweep and what the report needs from it.
+
+    ``curves`` maps a scalar name (``return/total``, ``return/<c>``, ``weight/<c>``) to (steps [R], values
+    [R]); ``final`` maps ``return/total`` and ``return/<c>`` to the final return (NaN when unavailable).
+    """
+
+    path: Path | None
+    task: str
+    method: str
+    seed: int
+    status: str
+    reason: str = ""
+    total_frames: int = 0
+    collected_frames: int = 0
+    components: list[str] = field(default_factory=list)
+    curves: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    final: dict[str, float] = field(default_factory=dict)
+    decisions: list[dict[str, Any]] = field(default_factory=list)
+    llm_calls: list[dict[str, Any]] = field(default_factory=list)
+    llm_name: str = "offline"
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def scheduled(self) -> bool:
+        """Whether a selector changed the weights during training (not PPO's constant weights)."""
+        return any(d.get("selector") not in (None, "constant") for d in self.decisions)
+
+    @property
+    def final_return(self) -> float:
+        return self.final.get("return/total", math.nan)
+
+
+def read_scalar(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A TorchRL CSVLogger file (rows ``step,value``, no header) as (steps [R], values [R]), sorted by step."""
+    steps, values = [], []
+    with open(path) as handle:
+        for row in csv.reader(handle):
+            if len(row) >= 2:
+                steps.append(float(row[0]))
+                values.append(float(row[1]))
+    order = np.argsort(steps, kind="stable")
+    return np.asarray(steps)[order], np.asarray(values)[order]
+
+
+def read_jsonl(path: Path) -> list[dict[str, Any]]:
+    """Every parsable JSON line of ``path`` (a truncated last line from a killed run is skipped)."""
+    if not path.is_file():
+        return []
+    entries = []
+    for line in path.read_text().splitlines():
+        try:
+            entries.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return entries
+
+
+def method_label(config: dict[str, Any]) -> str:
+    """The method's name, plus the LLM backend when an LLM (not the offline stand-in) chose the weights."""
+    method = config.get("method", {}) or {}
+    llm = (config.get("llm", {}) or {}).get("name", "offline")
+    uses_llm = method.get("selector") in ("llm", "direct")
+    return f"{method.get('name', '?')}[{llm}]" if uses_llm and llm != "offline" else str(method.get("name", "?"))
+
+
+def load_run(path: Path) -> Run:
+    """Reads one run directory (config, scalars, decisions, LLM calls) and decides its status."""
+    config_path = path / "config.yaml" if (path / "config.yaml").is_file() else path / ".hydra" / "config.yaml"
+    config = yaml.safe_load(config_path.read_text()) or {}
+    run = Run(
+        path=path,
+        task=str(config.get("task", {}).get("name", "?")),
+        method=method_label(config),
+        seed=int(config.get("seed", 0)),
+        status="ok",
+        total_frames=int(config.get("trainer", {}).get("total_frames", 0)),
+        llm_name=str((config.get("llm", {}) or {}).get("name", "offline")),
+    )
+    scalars = path / SCALARS_DIR
+    for group in ("return", "weight"):
+        for csv_path in sorted((scalars / group).glob("*.csv")):
+            run.curves[f"{group}/{csv_path.stem}"] = read_scalar(csv_path)
+    logged = [name.split("/", 1)[1] for name in run.curves if name.startswith("return/")]
+    task_order = list(config.get("task", {}).get("components") or [])  # the task's K axis order first
+    run.components = [c for c in task_order if c in logged] + [c for c in logged if c not in task_order]
+    run.components = [c for c in run.components if c != "total"]
+    for name, (steps, values) in run.curves.items():
+        if name.startswith("return/"):
+            run.final[name] = final_return(steps, values, run.total_frames)
+    run.decisions = read_jsonl(path / DECISIONS_FILE)
+    run.llm_calls = read_jsonl(path / LLM_CALLS_FILE)
+
+    checkpoint = path / CHECKPOINT_FILE
+    if checkpoint.is_file():
+        try:
+            state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+            run.collected_frames = int(state.get("collected_frames", 0))
+        except Exception as error:  # a torn or foreign file: the run cannot be trusted
+            run.status, run.reason = "incomplete", f"unreadable checkpoint ({type(error).__name__})"
+            return run
+    if not checkpoint.is_file():
+        run.status, run.reason = "incomplete", "no checkpoint.pt (crashed, killed or still running)"
+    elif run.collected_frames < run.total_frames:
+        run.status = "incomplete"
+        run.reason = f"checkpoint at {run.collected_frames} of {run.total_frames} frames"
+    else:
+        steps = run.curves.get("return/total", (np.array([]), np.array([])))[0]
+        rows = int(final_window_mask(steps, run.total_frames).sum())
+        if rows == 0:
+            run.status = "too few metric rows"
+            run.reason = f"no return/total row after {0.9 * run.total_frames:.0f} frames ({len(steps)} rows in all)"
+    return run
+
+
+def find_run_dirs(sweep_dir: Path) -> list[Path]:
+    """Every directory below ``sweep_dir`` holding ``config.yaml`` or ``.hydra/config.yaml``."""
+    found = {p.parent for p in sweep_dir.rglob("config.yaml") if p.parent.name != ".hydra"}
+    found |= {p.parent.parent for p in sweep_dir.rglob(".hydra/config.yaml")}
+    return sorted(found)
+
+
+def expected_seeds(sweep_dir: Path) -> list[int] | None:
+    """The seeds the sweep asked for, from Hydra's ``multirun.yaml`` (``hydra.sweeper.params.seed`` or a
+    ``seed=a,b,c`` override); None when the file or the parameter is absent or not a plain list."""
+    path = sweep_dir / "multirun.yaml"
+    if not path.is_file():
+        return None
+    hydra = (yaml.safe_load(path.read_text()) or {}).get("hydra", {}) or {}
+    spec = ((hydra.get("sweeper") or {}).get("params") or {}).get("seed")
+    for override in (hydra.get("overrides") or {}).get("task") or []:
+        if str(override).startswith("seed="):
+            spec = str(override).split("=", 1)[1]
+    if spec is None:
+        return None
+    try:
+        return sorted(int(part) for part in str(spec).split(","))
+    except ValueError:
+        return None
+
+
+def load_sweep(sweep_dir: Path) -> list[Run]:
+    """All runs of a sweep, plus a ``missing`` placeholder for every (task, method) cell lacking a seed that
+    the sweep asked for (or that another cell of the sweep has)."""
+    runs = [load_run(path) for path in find_run_dirs(Path(sweep_dir))]
+    seeds = expected_seeds(Path(sweep_dir)) or sorted({run.seed for run in runs})
+    cells = sorted({(run.task, run.method) for run in runs})
+    present = {(run.task, run.method, run.seed) for run in runs}
+    for task, method in cells:
+        for seed in seeds:
+            if (task, method, seed) not in present:
+                runs.append(Run(None, task, method, seed, "missing", "no run directory for this seed"))
+    return sorted(runs, key=lambda r: (r.task, method_rank(r.method), r.seed))
+
+
+def method_rank(method: str) -> tuple[int, str]:
+    """Sort key putting methods in the paper's order."""
+    base = method.split("[", 1)[0]
+    return (METHOD_ORDER.index(base) if base in METHOD_ORDER else len(METHOD_ORDER), method)

@@ -1,0 +1,147 @@
+"""Statistics over seeds: final return of one run, mean ± std, bootstrap CI, IQM, change against PPO.
+
+Pure functions on 1-D arrays; nothing here reads files. "Final return" of a run is defined once, in
+:func:`final_return`, and used by every table and test.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+FINAL_WINDOW = 0.1  # the last 10 % of the frame budget
+BOOTSTRAP_RESAMPLES = 10_000
+
+
+def final_window_mask(steps: np.ndarray, total_frames: float, window: float = FINAL_WINDOW) -> np.ndarray:
+    """Which logged rows fall in the final window of the run: ``step > (1 - window) * total_frames``.
+
+    Args:
+        steps: frames at which each row was logged, shape [R].
+        total_frames: the run's frame budget (``trainer.total_frames``).
+
+    Example:
+        >>> final_window_mask(np.array([100, 900, 950, 1000]), 1000).tolist()
+        [False, False, True, True]
+    """
+    return np.asarray(steps, dtype=float) > (1.0 - window) * float(total_frames)  # step > 0.9 F
+
+
+def final_return(steps: np.ndarray, values: np.ndarray, total_frames: float, window: float = FINAL_WINDOW) -> float:
+    """The final return of one run: mean of the logged ``return/total`` rows with
+    ``step > (1 - window) * total_frames`` (default: the last 10 % of the frame budget).
+
+    Each row is the mean native return of the episodes that finished in one training iteration, so this
+    averages the last ~10 % of iterations. NaN when no row lies in the window (the run is then reported
+    as "too few metric rows", never silently dropped).
+
+    Args:
+        steps: frames at which each row was logged, shape [R].
+        values: the logged returns, shape [R].
+        total_frames: the run's frame budget.
+
+    Example:
+        >>> final_return(np.array([500, 950, 1000]), np.array([1.0, 2.0, 4.0]), 1000)
+        3.0
+    """
+    in_window = final_window_mask(steps, total_frames, window)
+    if not in_window.any():
+        return math.nan
+    return float(np.mean(np.asarray(values, dtype=float)[in_window]))  # (1/|W|) Σ_{r ∈ W} R_r
+
+
+def mean_std(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (ddof = 1, NaN for a single value) over seeds.
+
+    Example:
+        >>> mean_std([1.0, 2.0, 3.0])
+        (2.0, 1.0)
+    """
+    x = np.asarray(values, dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan
+    std = float(np.std(x, ddof=1)) if x.size > 1 else math.nan  # sqrt(Σ (x - x̄)² / (n - 1))
+    return float(np.mean(x)), std
+
+
+def bootstrap_ci(
+    values: Sequence[float], confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = 0
+) -> tuple[float, float]:
+    """Percentile-bootstrap confidence interval of the mean over seeds.
+
+    ``resamples`` resamples of the n values with replacement (fixed ``seed``, so reports are reproducible);
+    the interval is the (1 - confidence) / 2 and (1 + confidence) / 2 quantiles of the resampled means.
+    With 3-5 seeds the interval is wide and optimistic (it never leaves [min, max]); read it as a
+    spread, not as a significance test.
+
+    Example:
+        >>> bootstrap_ci([2.0, 2.0, 2.0])
+        (2.0, 2.0)
+    """
+    x = np.asarray(values, dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, x.size, size=(resamples, x.size))
+    means = x[picks].mean(axis=1)  # x̄*_b = (1/n) Σ_i x_{I_bi}, I_bi ~ U{1..n}
+    tail = (1.0 - confidence) / 2.0
+    low, high = np.quantile(means, [tail, 1.0 - tail], method="inverted_cdf")
+    return float(low), float(high)
+
+
+def interquartile_mean(values: Sequence[float]) -> float:
+    """Mean of the middle half: sort, drop floor(n / 4) values at each end, average the rest
+    (``scipy.stats.trim_mean(x, 0.25)``). Equals the mean for n < 4.
+
+    Example:
+        >>> interquartile_mean([1.0, 2.0, 3.0, 100.0])
+        2.5
+    """
+    x = np.sort(np.asarray(values, dtype=float))
+    if x.size == 0:
+        return math.nan
+    cut = x.size // 4  # floor(0.25 n) from each end
+    return float(np.mean(x[cut : x.size - cut]))
+
+
+def change_percent(value: float, baseline: float) -> float:
+    """Change of ``value`` against ``baseline`` in percent of |baseline| (sign = better/worse for returns
+    that can be negative): 100 (value - baseline) / |baseline|. NaN for a zero or missing baseline.
+
+    Example:
+        >>> change_percent(-50.0, -100.0)
+        50.0
+    """
+    if not math.isfinite(baseline) or baseline == 0.0 or not math.isfinite(value):
+        return math.nan
+    return 100.0 * (value - baseline) / abs(baseline)  # Δ% = 100 (m - b) / |b|
+
+
+def mean_band(curves: Sequence[tuple[np.ndarray, np.ndarray]], points: int = 100) -> tuple[np.ndarray, ...]:
+    """Mean and std over seeds of learning curves logged at different steps.
+
+    Each curve (steps [R_i], values [R_i]) is linearly interpolated onto a common grid of ``points``
+    frames spanning the range every curve covers (latest first step to earliest last step).
+
+    Returns:
+        (grid [P], mean [P], std [P]); std is 0 for a single curve. Empty arrays when the curves do not
+        overlap.
+
+    Example:
+        >>> grid, mean, std = mean_band([(np.array([0, 10]), np.array([0.0, 10.0])),
+        ...                              (np.array([0, 10]), np.array([2.0, 12.0]))], points=3)
+        >>> mean.tolist(), std.tolist()
+        ([1.0, 6.0, 11.0], [1.0, 1.0, 1.0])
+    """
+    curves = [(np.asarray(s, float), np.asarray(v, float)) for s, v in curves if len(s) > 0]
+    if not curves:
+        return np.array([]), np.array([]), np.array([])
+    start = max(float(s[0]) for s, _ in curves)
+    stop = min(float(s[-1]) for s, _ in curves)
+    if stop < start:
+        return np.array([]), np.array([]), np.array([])
+    grid = np.linspace(start, stop, points if stop > start else 1)
+    stacked = np.stack([np.interp(grid, s, v) for s, v in curves])  # [S, P]
+    return grid, stacked.mean(axis=0), stacked.std(axis=0)  # population std over seeds (band only)
