@@ -94,7 +94,7 @@ class TrackingCamera:
         (48, 64, 3)
     """
 
-    def __init__(self, env, width: int = 320, height: int = 240, env_index: int = 0, distance: float = 1.2):
+    def __init__(self, env, width: int = 320, height: int = 240, env_index: int = 0, distance: float = 1.6):
         import mujoco
 
         self.env, self.env_index = env, env_index
@@ -110,7 +110,7 @@ class TrackingCamera:
         self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
         self.camera.trackbodyid = 1 if model.nbody > 1 else 0  # the first body after the world: the robot's root
         self.camera.distance = distance * max(float(model.stat.extent), 0.5)
-        self.camera.elevation = -20.0
+        self.camera.elevation = -15.0
         self.camera.azimuth = 135.0
         self.description = f"MuJoCo offscreen ({os.environ.get('MUJOCO_GL', 'glfw')}), camera tracking body 1"
 
