@@ -379,3 +379,31 @@ def test_generator_gives_up_after_the_configured_attempts(llm_server, loopback_o
     result = generate(_generator_cfg(llm_server, attempts=2), tmp_path)
     assert result.path is None and result.attempts == 2 and len(llm_server.requests) == 2
     assert not list(Path(tmp_path).glob("*.py"))
+
+
+# ---------------------------------------------------------------------------------------------------
+# sandbox command line
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_sandbox_cli_refuses_hostile_aux_code(tmp_path):
+    hostile = tmp_path / "aux.py"
+    hostile.write_text(HEAD + "    f = obs['observation'].storage\n    return type(f)(obs['reward.total'])\n")
+    finished = subprocess.run(
+        [sys.executable, "-m", "torchrl_ahrs.sandbox", "check", str(hostile), "--kind", "aux", "--task", "point_reach"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert finished.returncode == 1 and "refused" in finished.stdout and "'type'" in finished.stdout, finished.stdout
+
+
+@pytest.mark.slow
+def test_sandbox_cli_accepts_a_shipped_aux_reward_on_its_task():
+    finished = subprocess.run(
+        [sys.executable, "-m", "torchrl_ahrs.sandbox", "check", str(shipped_aux_path("quadcopter")), "--kind", "aux"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert finished.returncode == 0 and "accepted" in finished.stdout, finished.stdout + finished.stderr

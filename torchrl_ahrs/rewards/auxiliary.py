@@ -297,6 +297,23 @@ def validate_aux_file(
         return validate_in_child(path, "aux", inputs_path=inputs_path)
 
 
+def infer_aux_task(path: str | Path) -> str | None:
+    """The task an auxiliary reward file was written for: ``generate_aux``'s header ("... for task <name>.")
+    or a shipped file's name; None when neither says."""
+    import re
+
+    from torchrl_ahrs.envs.registry import available_tasks
+
+    path = Path(path)
+    try:
+        match = re.search(r"for task ([A-Za-z0-9_]+)\.", path.read_text()[:2000])
+    except (OSError, UnicodeDecodeError):
+        return None
+    if match and match.group(1) in available_tasks():
+        return match.group(1)
+    return path.stem if path.stem in available_tasks() else None
+
+
 def task_with_auxiliary(cfg: Any, check: bool = True) -> dict[str, Any]:
     """The task config as a plain dict; when the method uses the auxiliary reward, with an ``auxiliary`` entry.
 
