@@ -14,7 +14,7 @@ from typing import Any
 
 from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 
-from torchrl_ahrs.rewards.auxiliary import maybe_add_auxiliary
+from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX, maybe_add_auxiliary
 from torchrl_ahrs.rewards.components import TOTAL, component_reward_keys, episode_return_keys
 
 TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
@@ -93,6 +93,11 @@ def make_env(
     if task_cfg.get("auxiliary"):  # ("reward", "aux") and ("reward", "total_aux") from sandboxed code
         env = maybe_add_auxiliary(env if isinstance(env, TransformedEnv) else TransformedEnv(env), task_cfg)
     missing = [key for key in component_reward_keys(tracked) if key not in env.full_reward_spec.keys(True, True)]
+    if missing and any(key[-1] in (AUX, TOTAL_AUX) for key in missing):
+        raise ValueError(
+            f"components {components} name the auxiliary reward but the task config has no 'auxiliary' entry; "
+            "build it with torchrl_ahrs.rewards.auxiliary.task_with_auxiliary(cfg)"
+        )
     if missing:
         raise ValueError(f"task {task_cfg['name']!r} does not write the reward leaves {missing}")
     if not isinstance(env, TransformedEnv):
