@@ -1,6 +1,6 @@
-"""Paper-style report of a sweep: ``python -m torchrl_ahrs.report <sweep dir> [--out DIR]``.
+"""Paper-style report of a sweep: ``python -m torchrl_ahrs.report <sweep dir> [<sweep dir> ...] [--out DIR]``.
 
-Reads every run directory below the sweep directory (see :mod:`torchrl_ahrs.reporting.runs`) and writes
+Reads every run directory below the sweep directories (several are pooled) (see :mod:`torchrl_ahrs.reporting.runs`) and writes
 to ``--out`` (default ``<sweep dir>/report``):
 
 - ``report.md``: the method x task table of the paper's Tables I-II (final return mean ± std over seeds,
@@ -52,8 +52,9 @@ def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
     return path
 
 
-def write_report(sweep_dir: Path, out_dir: Path, title: str | None = None) -> dict[str, Any]:
-    """Writes the report of ``sweep_dir`` into ``out_dir``; returns its tables (lists of row dicts).
+def write_report(sweep_dir: Path | list[Path], out_dir: Path, title: str | None = None) -> dict[str, Any]:
+    """Writes the report of ``sweep_dir`` (or of several sweep directories pooled, e.g. a sweep extended
+    with more seeds) into ``out_dir``; returns its tables (lists of row dicts).
 
     Example:
         >>> tables = write_report(Path("outputs/sweeps/smoke"), Path("/tmp/report"))  # doctest: +SKIP
@@ -71,7 +72,8 @@ def write_report(sweep_dir: Path, out_dir: Path, title: str | None = None) -> di
     for name, rows in tables.items():
         write_csv(rows, out_dir / f"{name}.csv")
     images = draw_figures(runs, out_dir)
-    (out_dir / "report.md").write_text(render_markdown(runs, tables, images, title or sweep_dir.name))
+    names = [Path(d).name for d in (sweep_dir if isinstance(sweep_dir, list) else [sweep_dir])]
+    (out_dir / "report.md").write_text(render_markdown(runs, tables, images, title or " + ".join(names)))
     return tables
 
 
@@ -144,15 +146,16 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("sweep_dir", type=Path, help="the sweep directory (hydra.sweep.dir)")
+    parser.add_argument("sweep_dir", type=Path, nargs="+", help="sweep directories (hydra.sweep.dir), pooled")
     parser.add_argument("--out", type=Path, default=None, help="output directory (default <sweep dir>/report)")
     parser.add_argument("--title", default=None, help="report title (default: the sweep directory's name)")
     args = parser.parse_args(argv)
-    if not args.sweep_dir.is_dir():
-        print(f"error: {args.sweep_dir} is not a directory", file=sys.stderr)
-        return 2
-    out_dir = args.out or args.sweep_dir / "report"
-    tables = write_report(args.sweep_dir, out_dir, args.title)
+    for sweep_dir in args.sweep_dir:
+        if not sweep_dir.is_dir():
+            print(f"error: {sweep_dir} is not a directory", file=sys.stderr)
+            return 2
+    out_dir = args.out or args.sweep_dir[0] / "report"
+    tables = write_report(list(args.sweep_dir), out_dir, args.title)
     not_ok = [row for row in tables["runs"] if row["status"] != "ok"]
     print(f"{len(tables['runs'])} runs, {len(not_ok)} not ok; report in {out_dir / 'report.md'}")
     for row in not_ok:

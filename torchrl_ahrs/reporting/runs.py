@@ -180,11 +180,14 @@ def expected_seeds(sweep_dir: Path) -> list[int] | None:
         return None
 
 
-def load_sweep(sweep_dir: Path) -> list[Run]:
-    """All runs of a sweep, plus a ``missing`` placeholder for every (task, method) cell lacking a seed that
-    the sweep asked for (or that another cell of the sweep has)."""
-    runs = [load_run(path) for path in find_run_dirs(Path(sweep_dir))]
-    seeds = expected_seeds(Path(sweep_dir)) or sorted({run.seed for run in runs})
+def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
+    """All runs of one sweep (or of several, e.g. a sweep extended later with more seeds), plus a
+    ``missing`` placeholder for every (task, method) cell lacking a seed that a sweep asked for (or, without
+    ``multirun.yaml``, that another cell has)."""
+    sweep_dirs = [Path(sweep_dirs)] if isinstance(sweep_dirs, str | Path) else [Path(d) for d in sweep_dirs]
+    runs = [load_run(path) for sweep_dir in sweep_dirs for path in find_run_dirs(sweep_dir)]
+    asked = [expected_seeds(sweep_dir) for sweep_dir in sweep_dirs]
+    seeds = sorted({s for group in asked if group for s in group} or {run.seed for run in runs})
     cells = sorted({(run.task, run.method) for run in runs})
     present = {(run.task, run.method, run.seed) for run in runs}
     for task, method in cells:

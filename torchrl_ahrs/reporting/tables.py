@@ -42,6 +42,7 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 "ci95_high": high,
                 "iqm": interquartile_mean(finals),
                 "seeds": " ".join(str(r.seed) for r in group if r.ok),
+                "total_frames": " ".join(str(f) for f in sorted({r.total_frames for r in group if r.ok})),
             }
         )
     baselines = {row["task"]: row["mean"] for row in rows if row["method"] == BASELINE}
