@@ -66,8 +66,8 @@ def litellm_imported():
 @pytest.mark.parametrize(
     "script, error_name",
     [
-        ([("reset", "~[2]~")], "Connection error"),
-        ([("truncated", "~[2]~")], "line 1 column"),
+        ([("reset", "~[2]~")], "Connection reset by peer"),
+        ([("truncated", "~[2]~")], "JSONDecodeError"),
         ([rate_limit({"Retry-After": "0"})], "RateLimitError"),
     ],
     ids=["connection-reset", "truncated-json", "429-no-wait"],
@@ -96,7 +96,7 @@ def test_server_down_falls_back_quickly(tmp_path, loopback_only):
     scheduler = scheduler_for(f"http://127.0.0.1:{free_port()}/v1", tmp_path, max_retries=2)
     assert decide(scheduler) < 3.0
     (call,) = jsonl(tmp_path / CALLS_FILE)
-    assert call["attempts"] == 3 and call["error"].count("Connection error") == 3
+    assert call["attempts"] == 3 and call["error"].count("Connection refused") == 3
     assert "LLM call failed after 3 attempt(s)" in jsonl(tmp_path / "scheduler_decisions.jsonl")[0]["message"]
 
 
@@ -212,7 +212,7 @@ def test_training_goes_on_through_every_fault(tmp_path, loopback_only):
     assert all("LLM call failed after 2 attempt(s)" in message for message in messages[:3])
     assert "ContextWindowExceededError" in messages[4] and "previous rule 4 stays" in messages[4]
     calls = jsonl(run_dir / CALLS_FILE)
-    for index, fault in ((0, "Connection error"), (1, "Connection error"), (2, "line 1 column")):
+    for index, fault in ((0, "Connection refused"), (1, "Connection reset by peer"), (2, "JSONDecodeError")):
         assert fault in calls[index]["error"] and calls[index]["response"] is None
     assert [call["attempts"] for call in calls] == [2, 2, 2, 2, 1, 1]
     assert "RateLimitError" in calls[3]["error"] and calls[3]["parsed"] == 4

@@ -194,7 +194,7 @@ class LLMClient:
                 )
             except Exception as error:  # noqa: BLE001 (every failure is recorded, then retried or returned)
                 name = type(error).__name__
-                errors.append(self._mask(f"{name}: {str(error)[:300]}"))
+                errors.append(self._mask(f"{name}: {str(error)[:300]}{root_cause(error)}"))
                 log.warning("LLM call attempt %d failed: %s", attempt + 1, errors[-1])
                 if name in _NON_RETRYABLE:
                     break
@@ -328,3 +328,32 @@ def retry_after(error: BaseException) -> float | None:
         except (TypeError, ValueError, OverflowError):
             continue  # an unreadable header is no demand
     return None
+
+
+def root_cause(error: BaseException) -> str:
+    """`` [cause: <innermost exception>]`` when the chain under ``error`` ends in a different exception
+    (litellm reports a refused connection, a reset and a truncated body all as "InternalServerError"),
+    else ''.
+
+    Example:
+        >>> try:
+        ...     try:
+        ...         raise ConnectionResetError(104, "Connection reset by peer")
+        ...     except OSError as inner:
+        ...         raise RuntimeError("Connection error.") from inner
+        ... except RuntimeError as outer:
+        ...     print(root_cause(outer))
+         [cause: ConnectionResetError: [Errno 104] Connection reset by peer]
+    """
+    innermost, seen = error, {id(error)}
+    while True:
+        below = innermost.__cause__
+        if below is None and not innermost.__suppress_context__:  # as tracebacks do ("from None" hides it)
+            below = innermost.__context__
+        if below is None or id(below) in seen:
+            break
+        innermost = below
+        seen.add(id(below))
+    if innermost is error:
+        return ""
+    return f" [cause: {type(innermost).__name__}: {str(innermost)[:200]}]"
