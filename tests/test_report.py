@@ -195,3 +195,17 @@ def test_smoke_sweep_and_report_end_to_end(tmp_path):
     }
     assert all(math.isfinite(float(row["mean"])) for row in summary)
     assert (sweep / "report" / "weights_quadcopter.png").is_file()
+
+
+def test_pooled_sweeps_expect_the_union_of_their_seeds(tmp_path):
+    first, extension = tmp_path / "first", tmp_path / "extension"
+    for sweep, seeds in ((first, "0,1"), (extension, "2,3")):
+        sweep.mkdir()
+        (sweep / "multirun.yaml").write_text(yaml.safe_dump({"hydra": {"sweeper": {"params": {"seed": seeds}}}}))
+    make_run(first, "ppo", 0, 1.0)
+    make_run(first, "ppo", 1, 3.0)
+    make_run(extension, "ppo", 3, 5.0)  # seed 2 of the extension never ran
+    tables = write_report([first, extension], tmp_path / "report")
+    assert [(row["seed"], row["status"]) for row in tables["runs"]] == [(0, "ok"), (1, "ok"), (2, "missing"), (3, "ok")]
+    (summary,) = tables["summary"]
+    assert (summary["seeds_ok"], summary["mean"]) == (3, pytest.approx(3.0))  # (1 + 3 + 5) / 3

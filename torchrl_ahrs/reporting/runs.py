@@ -41,6 +41,11 @@ class Run:
 
     ``curves`` maps a scalar name (``return/total``, ``return/<c>``, ``weight/<c>``) to (steps [R], values
     [R]); ``final`` maps ``return/total`` and ``return/<c>`` to the final return (NaN when unavailable).
+
+    Example:
+        >>> run = Run(None, "point_reach", "ppo", 2, "missing", "no run directory for this seed")
+        >>> run.ok, run.final_return
+        (False, nan)
     """
 
     path: Path | None
