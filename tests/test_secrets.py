@@ -123,3 +123,20 @@ def test_secret_field_names(name, secret):
 def test_secret_values_come_from_config_and_overrides():
     config = {"llm": {"api_key": "sk-from-yaml", "api_key_env": "OPENAI_API_KEY", "max_tokens": 1024}}
     assert secret_values(config, ["+logger.token='tok-123456'", "seed=1"]) == {"sk-from-yaml", "tok-123456"}
+
+
+def test_callback_rewrites_job_and_sweep_files(tmp_path):
+    key = fake_key("config")
+    overrides = ["llm=openai", f"llm.api_key={key}", f"hydra.run.dir={tmp_path}", f"hydra.sweep.dir={tmp_path}"]
+    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    cfg.hydra.runtime.output_dir = str(tmp_path)
+    (tmp_path / ".hydra").mkdir()
+    for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+        (tmp_path / ".hydra" / name).write_text(f"- llm.api_key={key}\n- llm.max_tokens=1024\n")
+    (tmp_path / "multirun.yaml").write_text(f"api_key: {key}\n")
+    callback = RedactHydraOutput()
+    callback.on_job_start(config=cfg, task_function=None)
+    callback.on_multirun_end(config=cfg)
+    assert files_containing(tmp_path, [key]) == []
+    assert (tmp_path / ".hydra" / "overrides.yaml").read_text() == "- llm.api_key=<redacted>\n- llm.max_tokens=1024\n"
