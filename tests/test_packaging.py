@@ -24,6 +24,11 @@ def test_wheel_runs_training_outside_the_checkout(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     assert "torchrl_ahrs/conf/config.yaml" in names
     assert any(name.startswith("torchrl_ahrs/conf/task/") for name in names)
+    # every subpackage and every robot model of the checkout is in the wheel
+    for init in (ROOT / "torchrl_ahrs").rglob("__init__.py"):
+        assert init.relative_to(ROOT).as_posix() in names, f"{init.parent.name} missing from pyproject's packages"
+    for asset in (ROOT / "torchrl_ahrs").rglob("*.xml"):
+        assert asset.relative_to(ROOT).as_posix() in names
 
     # a fresh venv that gets only the wheel; its dependencies come from this interpreter's site-packages
     env_dir = tmp_path / "venv"

@@ -8,10 +8,10 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.envs.registry import available_tasks
+from torchrl_ahrs.redaction import is_secret_key
 from torchrl_ahrs.rewards.auxiliary import aux_leaves, auxiliary_components
 from torchrl_ahrs.training.loggers import BACKENDS
 
-SECRET_MARKERS = ("api_key", "apikey", "token", "secret", "password")
 REDACTED = "<redacted>"
 
 
@@ -92,7 +92,7 @@ def redact(container: Any) -> Any:
 
 
 def _is_secret(key: Any) -> bool:
-    return isinstance(key, str) and any(marker in key.lower() for marker in SECRET_MARKERS)
+    return isinstance(key, str) and is_secret_key(key)
 
 
 def load_saved_config(run_dir: Path, overrides: list[str] = ()) -> DictConfig:

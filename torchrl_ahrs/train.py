@@ -18,7 +18,12 @@ PPO is this loop with K = 1 on ("reward", "total"); HD-PPO and the AHRS variants
 components and the selector that sets ``w``.
 """
 
+# ruff: noqa: E402  (the GL backend must be chosen before the imports below load mujoco)
 from __future__ import annotations
+
+from torchrl_ahrs.evaluation.render import select_gl_backend
+
+select_gl_backend()  # MuJoCo reads MUJOCO_GL once, at import: choose offscreen GL before anything imports it
 
 import logging
 import sys
@@ -57,6 +62,7 @@ from torchrl_ahrs.training.hooks import (
 from torchrl_ahrs.training.loggers import build_logger
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.video import register_video_log
 from torchrl_ahrs.value import WeightedMultiGAE
 
 log = logging.getLogger("torchrl_ahrs.train")
@@ -181,6 +187,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     returns_log = ComponentReturnLog(components, estimator)
     returns_log.register(trainer)
     trainer.register_op("post_optim_complete_log", loss_metrics)
+    register_video_log(trainer, cfg, actor, components, run_dir)
 
     def training_state() -> dict[str, Any]:
         return {
