@@ -12,6 +12,7 @@ from torchrl.modules import ProbabilisticActor
 
 from torchrl_ahrs.config import resolve_components
 from torchrl_ahrs.envs.registry import make_env
+from torchrl_ahrs.rewards.auxiliary import task_with_auxiliary
 from torchrl_ahrs.training.models import RunningNorm, build_actor
 
 CONFIG_FILE = "config.yaml"
@@ -64,7 +65,7 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
     if not isinstance(checkpoint, dict) or "actor" not in checkpoint:
         raise EvaluationError(f"checkpoint {checkpoint_path} has no 'actor' entry")
 
-    task = OmegaConf.to_container(cfg.task, resolve=True)
+    task = task_with_auxiliary(cfg, check=False)
     components = list(checkpoint.get("components") or resolve_components(cfg))
     probe = make_env(task, 1, int(cfg.seed), components=components)
     obs_dim = probe.observation_spec["observation"].shape[-1]

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tensordict import TensorDict
 from torchrl.record import VideoRecorder
 from torchrl.record.loggers import Logger
@@ -31,6 +31,7 @@ from torchrl.trainers import Trainer, TrainerHookBase
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.evaluation.episodes import record_frames
 from torchrl_ahrs.evaluation.render import base_env, make_frame_source, write_clip
+from torchrl_ahrs.rewards.auxiliary import task_with_auxiliary
 
 
 class GifVideoLogger(Logger):
@@ -155,7 +156,7 @@ def register_video_log(trainer: Trainer, cfg: DictConfig, policy, components: Se
     if interval <= 0:
         return None
     hook = VideoLog(
-        OmegaConf.to_container(cfg.task, resolve=True),
+        task_with_auxiliary(cfg, check=False),
         components,
         policy,
         run_dir,
