@@ -55,7 +55,9 @@ def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
     )
     for column, (method, group) in enumerate(scheduled.items()):
         weight_axis, rule_axis = axes[0, column], axes[1, column]
-        components = [name for name in group[0].curves if name.startswith("weight/")]
+        logged = [name for name in group[0].curves if name.startswith("weight/")]
+        ordered = [f"weight/{c}" for c in group[0].components]  # the task's K-axis order first
+        components = [n for n in ordered if n in logged] + [n for n in logged if n not in ordered]
         for name in components:
             grid, mean, std = mean_band([run.curves[name] for run in group if name in run.curves])
             if grid.size:
@@ -81,8 +83,9 @@ def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
 
 
 def component_returns(task: str, runs: list[Run], path: Path) -> Path | None:
-    """Final return of each reward component (mean ± std over finished seeds), one bar group per method."""
-    finished = [r for r in runs if r.ok]
+    """Final return of each reward component (mean ± std over finished seeds), one bar per method that
+    logs component returns; None when no run does."""
+    finished = [r for r in runs if r.ok and r.components]  # PPO (K = 1) logs no component returns
     if not finished:
         return None
     components = max((r.components for r in finished), key=len)
