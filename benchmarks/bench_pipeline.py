@@ -14,10 +14,12 @@ the same thread count:
   ``SamplerWithoutReplacement``, Adam with linear learning-rate annealing and gradient clipping.
 
 Timing: let ``t_i`` be the moment batch ``i`` (i = 1..n) leaves the collector. Frames per second are
-``(n - 1 - w) * frames_per_batch / (t_n - t_{w+1})`` with ``w`` warm-up batches, so both numbers
+``(n - 2 - w) * frames_per_batch / (t_{n-1} - t_{w+1})`` with ``w`` warm-up batches, so both numbers
 cover whole iterations (update on batch i, then collection of batch i+1) and neither counts
-construction, process start-up, the first ``w`` iterations or the final checkpoint. For ``ours`` the ``t_i`` come from the ``frames_per_second`` metric the
-training loop logs once per batch. Pipelines alternate across ``--repeat`` rounds (so a busy
+construction, process start-up, the first ``w`` iterations, the collector's teardown in its last
+batch or the final checkpoint. CPU milliseconds per frame over the same interval (all threads, and
+the ``ParallelEnv`` worker processes) are the load-independent companion figure. For ``ours`` the
+``t_i`` are taken by a thin proxy around the collector that ``train`` builds (nothing else changes). Pipelines alternate across ``--repeat`` rounds (so a busy
 neighbour on a shared machine penalises neither more) and the median of each is reported.
 
 ``ParallelEnv`` starts one process per environment. With more environments than ``--ref-workers``
@@ -30,8 +32,8 @@ Run: ``python benchmarks/bench_pipeline.py --frames 32768 --num-envs 64 --repeat
 from __future__ import annotations
 
 import argparse
-import csv
 import functools
+import os
 import statistics
 import tempfile
 import time
@@ -72,12 +74,81 @@ def frames_per_second(batch_times: list[float], frames_per_batch: int, warmup: i
     return frames_per_batch * (len(batch_times) - 1 - warmup) / (batch_times[-1] - batch_times[warmup])
 
 
+class CpuClock:
+    """CPU seconds (user + system) used by this process and its descendant processes since creation.
+
+    Descendants (``ParallelEnv`` workers) are found through ``/proc`` on Linux (elsewhere only this
+    process counts). A process that has exited keeps its last reading, so the clock never goes back.
+    """
+
+    def __init__(self):
+        self.tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+        self.children: dict[int, float] = {}
+
+    def __call__(self) -> float:
+        pending = [os.getpid()]
+        while pending:
+            pid = pending.pop()
+            for task in Path(f"/proc/{pid}/task").glob("*/children") if Path("/proc").exists() else []:
+                try:
+                    children = [int(child) for child in task.read_text().split()]
+                except OSError:
+                    continue
+                for child in children:
+                    pending.append(child)
+                    try:
+                        fields = Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()
+                    except OSError:
+                        continue
+                    self.children[child] = (int(fields[11]) + int(fields[12])) / self.tick  # utime + stime
+        return time.process_time() + sum(self.children.values())
+
+
+class TimedCollector:
+    """Delegates to a collector and records ``(wall, cpu)`` each time it hands out a batch."""
+
+    def __init__(self, collector):
+        self._collector = collector
+        self._cpu = CpuClock()
+        self.stamps: list[tuple[float, float]] = []
+
+    def __iter__(self):
+        for batch in self._collector:
+            self.stamps.append((time.perf_counter(), self._cpu()))
+            yield batch
+
+    def __getattr__(self, name):
+        return getattr(self._collector, name)
+
+
+def rates(stamps: list[tuple[float, float]], frames_per_batch: int, warmup: int) -> tuple[float, float]:
+    """(frames per wall-clock second, CPU milliseconds per frame) over the timed iterations.
+
+    Example:
+        >>> rates([(0.0, 0.0), (5.0, 9.0), (6.0, 11.0), (7.0, 13.0)], frames_per_batch=100, warmup=1)
+        (100.0, 20.0)
+    """
+    fps = frames_per_second([wall for wall, _ in stamps], frames_per_batch, warmup)
+    timed_frames = frames_per_batch * (len(stamps) - 1 - warmup)
+    return fps, 1e3 * (stamps[-1][1] - stamps[warmup][1]) / timed_frames
+
+
 # --- ours ----------------------------------------------------------------------------------------
 
 
-def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> float:
-    """Frames/s of ``torchrl_ahrs.train.train`` on task=ant_v5 after ``args.warmup`` batches."""
-    from torchrl_ahrs.train import train
+def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[float, float]:
+    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.train.train`` on task=ant_v5 after ``args.warmup`` batches.
+
+    The only instrumentation is a :class:`TimedCollector` around the collector ``train`` builds.
+    """
+    import torchrl_ahrs.train as training
+
+    timed: list[TimedCollector] = []
+    build_collector = training.make_collector
+
+    def make_timed_collector(*a, **kw):
+        timed.append(TimedCollector(build_collector(*a, **kw)))
+        return timed[-1]
 
     overrides = [
         "task=ant_v5",
@@ -94,17 +165,13 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> float:
     ]
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
-    with tempfile.TemporaryDirectory() as run_dir:
-        train(cfg, Path(run_dir))
-        with open(Path(run_dir) / "metrics" / "scalars" / "frames_per_second.csv") as handle:
-            rates = [float(row[1]) for row in csv.reader(handle)]
-    frames_per_batch = args.num_envs * args.rollout_steps
-    # the logged rate of batch i is frames_per_batch / (t_i - t_{i-1}); rebuild the t_i from it (the
-    # first rate counts from the hook's construction, so t_1 is the origin)
-    batch_times = [0.0]
-    for rate in rates[1:]:
-        batch_times.append(batch_times[-1] + frames_per_batch / rate)
-    return frames_per_second(batch_times, frames_per_batch, args.warmup)
+    training.make_collector = make_timed_collector
+    try:
+        with tempfile.TemporaryDirectory() as run_dir:
+            training.train(cfg, Path(run_dir))
+    finally:
+        training.make_collector = build_collector
+    return rates(timed[0].stamps[:-1], args.num_envs * args.rollout_steps, args.warmup)
 
 
 # --- TorchRL reference ---------------------------------------------------------------------------
@@ -158,8 +225,8 @@ def make_reference_models(env: TransformedEnv, hidden: list[int]) -> tuple[Proba
     return actor, ValueOperator(value_net, in_keys=["observation"])
 
 
-def run_reference(args: argparse.Namespace, total_frames: int) -> float:
-    """Frames/s of TorchRL's reference PPO pipeline on gymnasium Ant-v5 after ``args.warmup`` batches."""
+def run_reference(args: argparse.Namespace, total_frames: int) -> tuple[float, float]:
+    """(frames/s, CPU ms/frame, worker processes included) of TorchRL's reference PPO pipeline on gymnasium Ant-v5 after ``args.warmup`` batches."""
     torch.manual_seed(args.seed)
     frames_per_batch = args.num_envs * args.rollout_steps
     env = make_reference_env(args.num_envs, args.ref_workers, args.seed)
@@ -184,10 +251,11 @@ def run_reference(args: argparse.Namespace, total_frames: int) -> float:
         normalize_advantage=True,
     )
     optimizer = torch.optim.Adam(loss_module.parameters(), lr=3e-4, eps=1e-5)
-    batch_times = []
+    stamps = []
+    cpu = CpuClock()
     collected = 0
     for data in collector:
-        batch_times.append(time.perf_counter())
+        stamps.append((time.perf_counter(), cpu()))
         collected += data.numel()
         for _ in range(args.epochs):
             with torch.no_grad():
@@ -204,7 +272,7 @@ def run_reference(args: argparse.Namespace, total_frames: int) -> float:
             group["lr"] = 3e-4 * max(0.0, 1.0 - collected / total_frames)  # lr_i = lr_0 (1 - f_i / F)
         collector.update_policy_weights_()
     collector.shutdown()
-    return frames_per_second(batch_times, frames_per_batch, args.warmup)
+    return rates(stamps[:-1], frames_per_batch, args.warmup)
 
 
 def main() -> None:
@@ -226,26 +294,37 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     frames_per_batch = args.num_envs * args.rollout_steps
     batches = max(1, -(-args.frames // frames_per_batch))  # ceil
-    total_frames = (batches + args.warmup + 1) * frames_per_batch  # n batches time n - 1 - warmup iterations
+    # n batches time n - 2 - warmup iterations: the last batch is not timed either, because the collector's
+    # final rollout carries teardown work (3-4 s with ParallelEnv workers, measured)
+    total_frames = (batches + args.warmup + 2) * frames_per_batch
     print(
         f"Ant-v5  N={args.num_envs} T={args.rollout_steps} frames_per_batch={frames_per_batch} "
         f"epochs={args.epochs} minibatches={args.minibatches} hidden={args.hidden} "
         f"timed frames={batches * frames_per_batch} (+{args.warmup} warm-up batch) "
         f"torch threads={torch.get_num_threads()} ref ParallelEnv workers={min(args.ref_workers, args.num_envs)}"
     )
-    rates: dict[str, list[float]] = {"reference": [], **{method: [] for method in args.methods}}
+    results: dict[str, list[tuple[float, float]]] = {"reference": [], **{method: [] for method in args.methods}}
     for round_index in range(args.repeat):
-        for name in rates:
-            rate = run_reference(args, total_frames) if name == "reference" else run_ours(name, args, total_frames)
-            rates[name].append(rate)
-            print(f"  round {round_index + 1}: {name:9s} {rate:8.0f} frames/s", flush=True)
-    reference = statistics.median(rates["reference"])
-    print(f"reference (TorchRL sota PPO, gymnasium ParallelEnv) {reference:8.0f} frames/s (median)")
+        for name, runs in results.items():
+            result = run_reference(args, total_frames) if name == "reference" else run_ours(name, args, total_frames)
+            runs.append(result)
+            print(
+                f"  round {round_index + 1}: {name:9s} {result[0]:8.0f} frames/s {result[1]:7.3f} CPU ms/frame",
+                flush=True,
+            )
+    medians = {
+        name: [statistics.median(column) for column in zip(*runs, strict=True)] for name, runs in results.items()
+    }
+    reference_fps, reference_cpu = medians["reference"]
+    print(
+        f"reference (TorchRL sota PPO, gymnasium ParallelEnv) {reference_fps:8.0f} frames/s "
+        f"{reference_cpu:7.3f} CPU ms/frame (medians)"
+    )
     for method in args.methods:
-        ours = statistics.median(rates[method])
+        fps, cpu = medians[method]
         print(
-            f"ours method={method:5s} (train.train, EnvPool)       {ours:8.0f} frames/s (median)  "
-            f"ratio ours/reference {ours / reference:5.2f}x"
+            f"ours method={method:5s} (train.train, EnvPool)       {fps:8.0f} frames/s {cpu:7.3f} CPU ms/frame  "
+            f"ratio ours/reference {fps / reference_fps:5.2f}x (CPU per frame: reference/ours {reference_cpu / cpu:5.2f}x)"
         )
 
 
