@@ -62,6 +62,7 @@ class Run:
     decisions: list[dict[str, Any]] = field(default_factory=list)
     llm_calls: list[dict[str, Any]] = field(default_factory=list)
     llm_name: str = "offline"
+    where: str = ""  # <sweep dir name>/<path inside it>, for the report (absolute paths do not travel)
 
     @property
     def ok(self) -> bool:
@@ -190,7 +191,11 @@ def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
     ``missing`` placeholder for every (task, method) cell lacking a seed that a sweep asked for (or, without
     ``multirun.yaml``, that another cell has)."""
     sweep_dirs = [Path(sweep_dirs)] if isinstance(sweep_dirs, str | Path) else [Path(d) for d in sweep_dirs]
-    runs = [load_run(path) for sweep_dir in sweep_dirs for path in find_run_dirs(sweep_dir)]
+    runs = []
+    for sweep_dir in sweep_dirs:
+        for path in find_run_dirs(sweep_dir):
+            runs.append(load_run(path))
+            runs[-1].where = f"{sweep_dir.name}/{path.relative_to(sweep_dir)}"
     asked = [expected_seeds(sweep_dir) for sweep_dir in sweep_dirs]
     seeds = sorted({s for group in asked if group for s in group} or {run.seed for run in runs})
     cells = sorted({(run.task, run.method) for run in runs})

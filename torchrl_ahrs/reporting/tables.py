@@ -64,7 +64,7 @@ def run_rows(runs: list[Run]) -> list[dict[str, Any]]:
             "collected_frames": run.collected_frames,
             "total_frames": run.total_frames,
             "final_return": run.final_return,
-            "path": str(run.path) if run.path else "",
+            "path": run.where,
         }
         for component in run.components:
             row[f"final_return/{component}"] = run.final.get(f"return/{component}", math.nan)
