@@ -162,6 +162,7 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
         f"model.hidden_sizes=[{','.join(map(str, args.hidden))}]",
         "trainer.progress_bar=false",
         "checkpoint.interval=0",
+        *args.ours_overrides,
     ]
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
@@ -288,6 +289,9 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=["ppo", "hdppo"], choices=["ppo", "hdppo"])
     parser.add_argument("--ref-workers", type=int, default=4, help="ParallelEnv worker processes (reference)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--ours-overrides", nargs="*", default=[], help="extra Hydra overrides for ours, e.g. trainer.collector=multi"
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     args = parser.parse_args()
     if args.threads:
