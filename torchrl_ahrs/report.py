@@ -107,8 +107,8 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
         "## Final return (paper Tables I-II layout)\n",
         paper_table(tables["summary"]),
         "\n## Statistics per method and task\n",
-        "Bootstrap: percentile 95 % interval of the mean over seeds (10 000 resamples, fixed seed); with 3 "
-        "seeds it is a spread, not a significance test. IQM: mean of the middle half of the seeds (the mean "
+        "Bootstrap: percentile 95 % interval of the mean over seeds (10 000 resamples, fixed seed); with a "
+        "handful of seeds it is a spread, not a significance test. IQM: mean of the middle half of the seeds (the mean "
         "for fewer than 4 seeds).\n",
         markdown_table(
             tables["summary"],
