@@ -82,8 +82,11 @@ def draw_figures(runs: list[Run], out_dir: Path) -> dict[str, list[Path]]:
     images: dict[str, list[Path]] = {"curves": [], "weights": [], "components": []}
     for task in sorted({run.task for run in runs}):
         task_runs = [run for run in runs if run.task == task]
-        images["curves"].append(figures.learning_curves(task, task_runs, out_dir / f"curves_{task}.png"))
-        for kind, draw in (("weights", figures.weight_timelines), ("components", figures.component_returns)):
+        for kind, draw in (
+            ("curves", figures.learning_curves),
+            ("weights", figures.weight_timelines),
+            ("components", figures.component_returns),
+        ):
             path = draw(task, task_runs, out_dir / f"{kind}_{task}.png")
             if path is not None:
                 images[kind].append(path)

@@ -23,11 +23,14 @@ def _by_method(runs: list[Run]) -> dict[str, list[Run]]:
     return dict(sorted(grouped.items(), key=lambda item: method_rank(item[0])))
 
 
-def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "return/total") -> Path:
+def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "return/total") -> Path | None:
     """``scalar`` against frames for one task: per method the mean over its finished seeds (line) and
-    ± one std over seeds (band), curves interpolated onto a common frame grid."""
+    ± one std over seeds (band), curves interpolated onto a common frame grid; None without a finished run."""
+    finished = [r for r in runs if r.ok and scalar in r.curves]
+    if not finished:
+        return None
     figure, axis = plt.subplots(figsize=(6.4, 4.0))
-    for method, group in _by_method([r for r in runs if r.ok and scalar in r.curves]).items():
+    for method, group in _by_method(finished).items():
         grid, mean, std = mean_band([run.curves[scalar] for run in group])
         if grid.size == 0:
             continue

@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -161,9 +162,13 @@ def load_run(path: Path) -> Run:
 
 
 def find_run_dirs(sweep_dir: Path) -> list[Path]:
-    """Every directory below ``sweep_dir`` holding ``config.yaml`` or ``.hydra/config.yaml``."""
-    found = {p.parent for p in sweep_dir.rglob("config.yaml") if p.parent.name != ".hydra"}
-    found |= {p.parent.parent for p in sweep_dir.rglob(".hydra/config.yaml")}
+    """Every directory below ``sweep_dir`` holding ``config.yaml`` or ``.hydra/config.yaml``; symbolic
+    links are followed, so a sweep can be assembled from runs of other sweeps."""
+    found = set()
+    for root, _, files in os.walk(sweep_dir, followlinks=True):
+        here = Path(root)
+        if "config.yaml" in files:
+            found.add(here.parent if here.name == ".hydra" else here)
     return sorted(found)
 
 
