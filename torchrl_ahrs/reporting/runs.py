@@ -192,23 +192,22 @@ def expected_seeds(sweep_dir: Path) -> list[int] | None:
 
 
 def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
-    """All runs of one sweep (or of several, e.g. a sweep extended later with more seeds), plus a
-    ``missing`` placeholder for every (task, method) cell lacking a seed that a sweep asked for (or, without
-    ``multirun.yaml``, that another cell has)."""
+    """All runs of one sweep (or of several pooled, e.g. a sweep extended later with more seeds), plus a
+    ``missing`` placeholder for every seed a sweep asked for (``multirun.yaml``; without it, the seeds its
+    other cells have) that no pooled sweep holds, in every (task, method) cell of that sweep."""
     sweep_dirs = [Path(sweep_dirs)] if isinstance(sweep_dirs, str | Path) else [Path(d) for d in sweep_dirs]
-    runs = []
+    runs, wanted = [], set()
     for sweep_dir in sweep_dirs:
+        found = []
         for path in find_run_dirs(sweep_dir):
-            runs.append(load_run(path))
-            runs[-1].where = f"{sweep_dir.name}/{path.relative_to(sweep_dir)}"
-    asked = [expected_seeds(sweep_dir) for sweep_dir in sweep_dirs]
-    seeds = sorted({s for group in asked if group for s in group} or {run.seed for run in runs})
-    cells = sorted({(run.task, run.method) for run in runs})
+            found.append(load_run(path))
+            found[-1].where = f"{sweep_dir.name}/{path.relative_to(sweep_dir)}"
+        seeds = expected_seeds(sweep_dir) or sorted({run.seed for run in found})
+        wanted |= {(run.task, run.method, seed) for run in found for seed in seeds}
+        runs += found
     present = {(run.task, run.method, run.seed) for run in runs}
-    for task, method in cells:
-        for seed in seeds:
-            if (task, method, seed) not in present:
-                runs.append(Run(None, task, method, seed, "missing", "no run directory for this seed"))
+    for task, method, seed in sorted(wanted - present):
+        runs.append(Run(None, task, method, seed, "missing", "no run directory for this seed"))
     return sorted(runs, key=lambda r: (r.task, method_rank(r.method), r.seed))
 
 
