@@ -16,7 +16,7 @@ from hydra import compose, initialize_config_module
 from PIL import Image
 
 from torchrl_ahrs.config import save_config
-from torchrl_ahrs.evaluate import evaluate, main
+from torchrl_ahrs.evaluate import evaluate
 from torchrl_ahrs.evaluation.policy import EvaluationError, load_policy
 from torchrl_ahrs.train import train
 
@@ -134,17 +134,16 @@ def test_training_video_hook_writes_gif_and_tensorboard_video(trained_run):
     assert steps == "[2, 4]"
 
 
-def run_main(monkeypatch, capsys, *args):
-    """The Hydra entry point in this process (a subprocess would spend ~10 s importing torch)."""
-    monkeypatch.setattr(sys, "argv", ["torchrl_ahrs.evaluate", *args])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    return exit_info.value.code, capsys.readouterr().err
+def run_main(*args):
+    """The command line in a subprocess: Hydra's logging set-up in the test process would write to
+    streams that earlier tests' output capture has closed."""
+    result = run_cli(*args)
+    return result.returncode, result.stderr
 
 
-def test_missing_checkpoint_is_one_clear_error_line(tmp_path, monkeypatch, capsys):
+def test_missing_checkpoint_is_one_clear_error_line(tmp_path):
     save_config(make_cfg(*TINY_RUN), tmp_path / "config.yaml")
-    code, stderr = run_main(monkeypatch, capsys, f"run={tmp_path}")
+    code, stderr = run_main(f"run={tmp_path}")
     assert code == 2
     assert stderr.strip() == (
         f"error: no checkpoint at {tmp_path / 'checkpoint.pt'}: the run has not finished or ran with "
@@ -152,10 +151,10 @@ def test_missing_checkpoint_is_one_clear_error_line(tmp_path, monkeypatch, capsy
     )
 
 
-def test_missing_run_argument_and_directory_fail_clearly(tmp_path, monkeypatch, capsys):
+def test_missing_run_argument_and_directory_fail_clearly(tmp_path):
     with pytest.raises(EvaluationError, match="no run directory at"):
         load_policy(tmp_path / "absent")
-    code, stderr = run_main(monkeypatch, capsys)
+    code, stderr = run_main()
     assert code == 2 and stderr.strip() == (
         "error: give the training run directory: python -m torchrl_ahrs.evaluate run=<run dir>"
     )
