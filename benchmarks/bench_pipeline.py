@@ -24,7 +24,8 @@ neighbour on a shared machine penalises neither more) and the median of each is 
 
 ``ParallelEnv`` starts one process per environment. With more environments than ``--ref-workers``
 each worker process steps ``N / workers`` gymnasium envs in a ``SerialEnv`` (TorchRL's nested batched
-env), which on a small machine is faster than N processes competing for few cores.
+env): 64 worker processes (each a Python interpreter with torch, ~0.3 GB) would crowd a 2-core
+machine; ``--ref-workers 64`` gives the one-process-per-env form.
 
 Run: ``python benchmarks/bench_pipeline.py --frames 32768 --num-envs 64 --repeat 3``
 """
