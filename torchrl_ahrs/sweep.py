@@ -8,10 +8,11 @@ along; imported from here it is pickled by reference.
 Profiles (``conf/sweep/``, packaged as ``torchrl_ahrs.conf``):
 
 - ``smoke``: 2 tasks x 2 methods x 2 seeds, 4096 frames each (about a minute on 2 cores).
-- ``paper``: 4 methods x 2 tasks x 3 seeds at the largest budget a 2-core CPU affords (see
-  ``benchmarks/README.md`` for its wall time).
-- ``slurm``: the submitit launcher for a SLURM cluster; combine with a profile's grid, e.g.
-  ``+sweep=paper hydra/launcher=slurm``... see ``conf/sweep/slurm.yaml``.
+- ``paper``: 4 methods x 2 tasks x 3 seeds at 81 920 frames per run, the budget a 2-core CPU affords
+  (about 13 minutes; see ``benchmarks/SWEEPS.md``).
+
+Launchers (``conf/hydra/launcher/``): ``local`` (joblib, 2 jobs; the profiles' default) and ``slurm``
+(submitit), e.g. ``+sweep=paper hydra/launcher=slurm hydra.launcher.partition=<partition>``.
 
 Every run lands in ``<hydra.sweep.dir>/<task>/<method>/seed_<seed>``; then
 ``python -m torchrl_ahrs.report <hydra.sweep.dir>`` writes the tables and figures.
