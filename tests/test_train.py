@@ -140,3 +140,22 @@ def test_unknown_logger_backend_is_named():
     cfg = make_cfg("task=point_reach", "logger.backends=[csv,carrier_pigeon]")
     with pytest.raises(ConfigError, match="carrier_pigeon"):
         validate_config(cfg)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("collector", ["multi", "async"])
+def test_multi_process_collectors_train_and_log(tmp_path, collector):
+    cfg = make_cfg(
+        "task=point_reach",
+        "task.max_episode_steps=20",
+        "method=hdppo",
+        f"trainer.collector={collector}",
+        "trainer.workers=2",
+        "trainer.total_frames=4096",
+        "scheduler.interval=2",
+        *FAST,
+    )
+    metrics = train(cfg, tmp_path)
+    assert metrics["episodes"] > 0 and "return/distance" in metrics
+    weights = read_scalar(tmp_path, "weight/distance")
+    assert len(weights) == 4096 // (32 * 32 if collector == "multi" else 16 * 32)

@@ -51,9 +51,9 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(f"unknown logger backend(s) {unknown_backends}; accepted: {', '.join(BACKENDS)}")
     if trainer.lr <= 0:
         raise ConfigError(f"trainer.lr must be positive, got {trainer.lr}")
-    if trainer.collector not in ("sync", "multi"):
-        raise ConfigError(f"trainer.collector must be 'sync' or 'multi', got {trainer.collector!r}")
-    if trainer.collector == "multi" and trainer.num_envs % trainer.workers:
+    if trainer.collector not in ("sync", "multi", "async"):
+        raise ConfigError(f"trainer.collector must be 'sync', 'multi' or 'async', got {trainer.collector!r}")
+    if trainer.collector != "sync" and trainer.num_envs % trainer.workers:
         raise ConfigError(
             f"trainer.num_envs ({trainer.num_envs}) must be divisible by trainer.workers ({trainer.workers})"
         )

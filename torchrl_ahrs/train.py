@@ -34,7 +34,7 @@ import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
-from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
 from torchrl.trainers import Trainer, UpdateWeights
 
 from torchrl_ahrs.config import ConfigError, load_saved_config, resolve_components, save_config, validate_config
@@ -69,7 +69,10 @@ log = logging.getLogger("torchrl_ahrs.train")
 
 
 def make_collector(cfg: DictConfig, policy, components: list[str], remaining_frames: int):
-    """One process (``sync``) or ``workers`` processes each stepping ``num_envs / workers`` envs."""
+    """``sync``: the envs step in this process between updates. ``multi``: ``workers`` processes each
+    step ``num_envs / workers`` envs, all waiting for the update. ``async``: the worker processes keep
+    collecting while the learner updates (each iteration trains on one worker's batch of
+    ``num_envs / workers × rollout_steps`` frames, gathered with the previous iteration's policy)."""
     trainer_cfg = cfg.trainer
     frames_per_batch = trainer_cfg.num_envs * trainer_cfg.rollout_steps
     task = task_with_auxiliary(cfg, check=False)  # checked once in train()
@@ -87,6 +90,10 @@ def make_collector(cfg: DictConfig, policy, components: list[str], remaining_fra
         _EnvFactory(task, envs_per_worker, cfg.seed + 1000 * worker, components)
         for worker in range(trainer_cfg.workers)
     ]
+    if trainer_cfg.collector == "async":
+        return MultiAsyncCollector(
+            env_fns, policy, frames_per_batch=envs_per_worker * trainer_cfg.rollout_steps, total_frames=remaining_frames
+        )
     return MultiSyncCollector(
         env_fns, policy, frames_per_batch=frames_per_batch, total_frames=remaining_frames, cat_results=0
     )
