@@ -251,7 +251,10 @@ class EnvPoolEnv(EnvBase):
         # Rows of envs that were not reset are ignored by TorchRL (it merges with ``where(~_reset)``),
         # so they are left at zero; rows of reset envs get the fresh initial observation.
         rows = torch.as_tensor(info["env_id"], dtype=torch.long)
-        out = self.full_observation_spec.zero()
+        if getattr(self, "_zero_observation", None) is None:
+            # spec.zero() rebuilds the whole tree each call; resets happen on most steps of a batch
+            self._zero_observation = self.full_observation_spec.zero()
+        out = self._zero_observation.clone()
         fresh = TensorDict(self._observation_entries(obs), batch_size=[len(ids)], device=self.device)
         fresh[INFO] = TensorDict(self._info_entries(info), batch_size=[len(ids)], device=self.device)
         out[rows] = fresh
