@@ -6,10 +6,7 @@ happened. Any socket connection to a host other than 127.0.0.1 fails the test (n
 """
 
 import json
-import socket
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 import torch
@@ -29,95 +26,15 @@ SECRET = "sk-test-secret-0123456789"
 
 
 @pytest.fixture(autouse=True)
-def no_network(monkeypatch):
-    """Only loopback connections are allowed while these tests run."""
-    real_connect = socket.socket.connect
-    attempts = []
-
-    def guarded(self, address):
-        host = address[0] if isinstance(address, tuple) else address
-        if host not in ("127.0.0.1", "localhost", "::1"):
-            attempts.append(address)  # recorded: a library could swallow the exception below
-            raise OSError(f"network access attempted: {address}")
-        return real_connect(self, address)
-
-    monkeypatch.setattr(socket.socket, "connect", guarded)
+def no_network(loopback_only, monkeypatch):
+    """Only loopback connections are allowed while these tests run (``loopback_only`` in conftest)."""
     monkeypatch.setenv("TEST_LLM_KEY", SECRET)
-    yield
-    assert attempts == [], f"network access attempted: {attempts}"
-
-
-class ScriptedServer:
-    """``/v1/chat/completions`` answering from a list of steps: ("ok", text) | ("status", code) |
-    ("slow", seconds) | ("garbage", body). The last step repeats when the script runs out."""
-
-    def __init__(self):
-        self.script: list[tuple] = []
-        self.requests: list[dict] = []
-        server = self
-
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args):
-                pass
-
-            def do_POST(self):
-                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                server.requests.append({"body": body, "auth": self.headers.get("Authorization")})
-                kind, value = server.script.pop(0) if len(server.script) > 1 else server.script[0]
-                if kind == "slow":
-                    time.sleep(value)
-                    kind, value = "ok", "~[1]~"
-                if kind == "status":
-                    self.send_response(value)
-                    self.send_header("Content-Type", "application/json")
-                    self.end_headers()
-                    self.wfile.write(json.dumps({"error": {"message": f"scripted {value}", "type": "test"}}).encode())
-                    return
-                payload = (
-                    value.encode()
-                    if kind == "garbage"
-                    else json.dumps(
-                        {
-                            "id": "chatcmpl-test",
-                            "object": "chat.completion",
-                            "created": 0,
-                            "model": body.get("model", "test"),
-                            "choices": [
-                                {
-                                    "index": 0,
-                                    "message": {"role": "assistant", "content": value},
-                                    "finish_reason": "stop",
-                                }
-                            ],
-                            "usage": {"prompt_tokens": 100, "completion_tokens": 5, "total_tokens": 105},
-                        }
-                    ).encode()
-                )
-                try:
-                    self.send_response(200)
-                    self.send_header("Content-Type", "application/json")
-                    self.send_header("Content-Length", str(len(payload)))
-                    self.end_headers()
-                    self.wfile.write(payload)
-                except (BrokenPipeError, ConnectionResetError):
-                    pass  # the client gave up (timeout)
-
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.httpd.daemon_threads = True
-        self.port = self.httpd.server_address[1]
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-        self.thread.start()
-
-    def close(self):
-        self.httpd.shutdown()
-        self.httpd.server_close()
 
 
 @pytest.fixture
-def server():
-    instance = ScriptedServer()
-    yield instance
-    instance.close()
+def server(llm_server):
+    """The scripted server of ``tests/llm_server.py``."""
+    return llm_server
 
 
 def llm_config(server, **overrides):

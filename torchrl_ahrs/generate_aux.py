@@ -16,7 +16,6 @@ from __future__ import annotations
 import datetime
 import importlib
 import inspect
-import re
 import sys
 import tempfile
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from omegaconf import OmegaConf
 from torchrl_ahrs.generate_rules import extract_code_blocks
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
+from torchrl_ahrs.llm.generation import generation_output_dir
 from torchrl_ahrs.llm.sandbox import check_source, validate_in_child
 from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, collect_aux_inputs, load_aux_function
 
@@ -192,13 +192,7 @@ def main() -> None:
 
     @hydra.main(config_path="pkg://torchrl_ahrs.conf", config_name="config", version_base="1.3")
     def _entry(cfg) -> None:
-        output = OmegaConf.select(cfg, "output")
-        if output is None:
-            model = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(cfg.llm.model))
-            stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-            output = Path("outputs") / "aux" / f"{cfg.task.name}-{model}-{stamp}"
-        output_dir = Path(output)
-        output_dir.mkdir(parents=True, exist_ok=True)
+        output_dir = generation_output_dir(cfg, "aux")
         result = generate(cfg, output_dir)
         _report(result)
         if result.path is None:

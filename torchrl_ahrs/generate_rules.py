@@ -24,6 +24,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
+from torchrl_ahrs.llm.generation import generation_output_dir
 from torchrl_ahrs.llm.prompts import rule_generation_prompt
 from torchrl_ahrs.llm.sandbox import check_source, validate_in_child
 from torchrl_ahrs.scheduling.rules import DEFAULT_REPOSITORY, RULE_ARITY, load_repository
@@ -166,13 +167,7 @@ def main() -> None:
 
     @hydra.main(config_path="pkg://torchrl_ahrs.conf", config_name="config", version_base="1.3")
     def _entry(cfg) -> None:
-        output = OmegaConf.select(cfg, "output")
-        if output is None:
-            model = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(cfg.llm.model))
-            stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-            output = Path("outputs") / "rules" / f"{cfg.task.name}-{model}-{stamp}"
-        output_dir = Path(output)
-        output_dir.mkdir(parents=True, exist_ok=True)
+        output_dir = generation_output_dir(cfg, "rules")
         result = generate(cfg, output_dir)
         _report(result)
         if not result.accepted:
