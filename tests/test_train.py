@@ -42,6 +42,7 @@ def test_hdppo_learns_point_reach_and_logs_every_component(tmp_path):
     assert last > first + 20, f"return did not go up: first {first:.1f}, last {last:.1f}"
     for name in ("distance", "arrival", "ctrl"):
         assert read_scalar(tmp_path, f"return/{name}")
+        assert len(read_scalar(tmp_path, f"reward/{name}")) == 49152 // (32 * 32)  # every iteration
         weights = read_scalar(tmp_path, f"weight/{name}")
         assert all(0.5 <= weight <= 1.5 for weight in weights)
     assert len(set(read_scalar(tmp_path, "weight/distance"))) > 1, "the HDPG rule never changed the weights"

@@ -137,11 +137,12 @@ class LinearLRDecay(TrainerHookBase):
 
 
 class ComponentReturnLog(TrainerHookBase):
-    """Logs the return of every episode that finished in the batch, per component, and the weights.
+    """Logs each component's reward and episode return, and the weights, once per batch.
 
-    Keys: ``return/total``, ``return/<component>``, ``weight/<component>``, ``episodes``,
-    ``frames_per_second``. Returns are means over the episodes that ended in this batch; a batch in
-    which none ended logs only the weights and the throughput.
+    Keys: ``reward/<c>`` (mean reward per step over the batch, logged every iteration, so long
+    episodes show progress before the first one ends), ``return/<c>`` and ``return/total`` (means over
+    the episodes that ended in this batch, when any did), ``episodes``, ``weight/<c>``,
+    ``frames_per_second``.
     """
 
     def __init__(self, components: Sequence[str], estimator: WeightedMultiGAE):
@@ -155,6 +156,8 @@ class ComponentReturnLog(TrainerHookBase):
         now = time.perf_counter()
         metrics = {"frames_per_second": batch.numel() / max(now - self.last_time, 1e-9)}
         self.last_time = now
+        for name in self.tracked:
+            metrics[f"reward/{name}"] = batch.get(("next", "reward", name)).mean().item()
         returns = finished_episode_returns(batch, self.tracked)  # [M, K+1]
         if returns.shape[0]:
             metrics["episodes"] = float(returns.shape[0])
