@@ -65,7 +65,7 @@ def test_ppo_is_the_same_loop_with_one_head_on_total(tmp_path):
         ("trainer.lr=0", "trainer.lr must be positive"),
         ("method.initial_weights=[1.0,2.0]", "method.initial_weights has 2 values"),
         ("method.components=[distance,speed]", "does not have"),
-        ("trainer.collector=async", "trainer.collector must be"),
+        ("trainer.collector=threads", "trainer.collector must be"),
     ],
 )
 def test_impossible_values_name_the_field(override, message):
