@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import pytest
+import torch
 from hydra import compose, initialize_config_module
 
 from torchrl_ahrs.config import ConfigError, validate_config
@@ -160,3 +161,30 @@ def test_multi_process_collectors_train_and_log(tmp_path, collector):
     assert metrics["episodes"] > 0 and "return/distance" in metrics
     weights = read_scalar(tmp_path, "weight/distance")
     assert len(weights) == 4096 // (32 * 32 if collector == "multi" else 16 * 32)
+
+
+def test_asymmetric_critic_reads_the_privileged_state(tmp_path):
+    cfg = make_cfg(
+        "task=go1_terrain",
+        "task.critic_observation=privileged_state",
+        "method=hdppo",
+        "trainer.num_envs=4",
+        "trainer.rollout_steps=16",
+        "trainer.total_frames=128",
+        "trainer.num_minibatches=2",
+        "trainer.progress_bar=false",
+        "model.hidden_sizes=[16]",
+    )
+    train(cfg, tmp_path)
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    critic_norm_means = [value for key, value in checkpoint["critic"].items() if key.endswith("mean")]
+    first_actor_layer = next(value for key, value in checkpoint["actor"].items() if key.endswith("weight"))
+    assert critic_norm_means[0].shape == (123,)  # MuJoCo Playground's privileged state
+    assert first_actor_layer.shape[-1] == 48  # the policy still sees only the proprioceptive state
+    assert critic_norm_means[0].abs().sum() > 0  # its statistics were updated too
+
+
+def test_unknown_critic_observation_is_named(tmp_path):
+    cfg = make_cfg("task=point_reach", "+task.critic_observation=x_ray", "trainer.total_frames=1024", *FAST)
+    with pytest.raises(ConfigError, match="x_ray"):
+        train(cfg, tmp_path)

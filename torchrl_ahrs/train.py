@@ -126,13 +126,24 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     # --- networks: shapes from a one-env probe of the task -----------------------------------------
     probe = make_env(task, 1, cfg.seed, components=components)
     obs_dim = probe.observation_spec["observation"].shape[-1]
+    critic_key = task.get("critic_observation") or "observation"  # e.g. privileged_state: asymmetric actor-critic
+    if critic_key not in probe.observation_spec.keys():
+        raise ConfigError(f"task.critic_observation={critic_key!r} is not an observation of task {task['name']!r}")
+    critic_obs_dim = probe.observation_spec[critic_key].shape[-1]
     action_spec = probe.full_action_spec[probe.action_key]
     probe.close()
     model = cfg.model
     obs_norm = RunningNorm(obs_dim)
+    critic_norm = obs_norm if critic_key == "observation" else RunningNorm(critic_obs_dim)
     actor = build_actor(obs_norm, obs_dim, action_spec, model.hidden_sizes, model.activation, model.init_log_std)
     critic = build_critic(
-        obs_norm, obs_dim, len(components), model.hidden_sizes, model.activation, model.separate_heads
+        critic_norm,
+        critic_obs_dim,
+        len(components),
+        model.hidden_sizes,
+        model.activation,
+        model.separate_heads,
+        in_key=critic_key,
     )
 
     # --- advantage, loss, optimiser ---------------------------------------------------------------
@@ -187,6 +198,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     scheduler = make_scheduler(cfg, estimator, components, run_dir, logger)
     scheduler.register(trainer, "rule_scheduler")
     ObservationNormUpdate(obs_norm).register(trainer)
+    if critic_norm is not obs_norm:
+        ObservationNormUpdate(critic_norm, critic_key).register(trainer, "critic_obs_norm")
     lr_decay = LinearLRDecay(optimizer, cfg.trainer.total_frames)
     if cfg.trainer.anneal_lr:
         lr_decay.register(trainer)
