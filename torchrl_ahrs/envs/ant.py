@@ -24,11 +24,10 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import EnvBase
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, component_term_keys
+from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
 from torchrl_ahrs.envs.rotations import body_axis, quat_rotate_inverse
-from torchrl_ahrs.rewards.components import RewardComponents
 
 ANT_TERMS = ("progress", "alive", "up", "heading", "actions_cost", "energy", "joints_at_limit", "death")
 
@@ -208,5 +207,4 @@ def make_ant(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: 
         seed=seed,
         device=device,
     )
-    components = list(task_cfg["components"])
-    return TransformedEnv(env, RewardComponents(components, term_keys=component_term_keys(components)))
+    return with_reward_components(env, task_cfg["components"])

@@ -44,12 +44,11 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs import legged_rewards as lr
 from torchrl_ahrs.envs.cassie_model import LEG_JOINTS, CassieLayout, load_cassie_model
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, component_term_keys
-from torchrl_ahrs.rewards.components import RewardComponents
+from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
 
 OBS_SCALES = {"lin_vel": 2.0, "ang_vel": 0.25, "dof_pos": 1.0, "dof_vel": 0.05}
 
@@ -292,5 +291,4 @@ def make_cassie(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, devic
         seed=seed,
         device=device,
     )
-    components = list(task_cfg["components"])
-    return TransformedEnv(env, RewardComponents(components, term_keys=component_term_keys(components)))
+    return with_reward_components(env, task_cfg["components"])

@@ -99,7 +99,9 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, TransformedEnv
+
+from torchrl_ahrs.rewards.components import RewardComponents
 
 REWARD_TERM_PREFIX = "reward_"
 
@@ -107,6 +109,12 @@ REWARD_TERM_PREFIX = "reward_"
 def component_term_keys(components: Sequence[str]) -> dict[str, tuple[str, str]]:
     """``{c: ("info", "reward_<c>")}`` for every component except ``"total"`` (RewardComponents' term_keys)."""
     return {name: ("info", REWARD_TERM_PREFIX + name) for name in components if name != "total"}
+
+
+def with_reward_components(env: EnvBase, components: Sequence[str]) -> TransformedEnv:
+    """``env`` with its ``("info", "reward_<c>")`` terms as reward leaves: what every task builder returns."""
+    components = list(components)
+    return TransformedEnv(env, RewardComponents(components, term_keys=component_term_keys(components)))
 
 
 class BatchedMujocoEnv(EnvBase):

@@ -19,8 +19,7 @@ import mujoco
 import numpy as np
 import torch
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, component_term_keys
-from torchrl_ahrs.rewards.components import RewardComponents
+from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
 
 POINT_XML = """
 <mujoco model="point_reach">
@@ -107,5 +106,4 @@ def make_point_reach(task_cfg: Mapping[str, Any], num_envs: int, seed: int, devi
         seed=seed,
         device=device,
     )
-    components = list(task_cfg["components"])
-    return env.append_transform(RewardComponents(components, term_keys=component_term_keys(components)))
+    return with_reward_components(env, task_cfg["components"])

@@ -19,11 +19,10 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import EnvBase
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, component_term_keys
+from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
 from torchrl_ahrs.envs.rotations import body_axis, quat_rotate
-from torchrl_ahrs.rewards.components import RewardComponents
 
 QUADCOPTER_TERMS = ("pos", "pos_up", "pos_spin")
 
@@ -125,5 +124,4 @@ def make_quadcopter(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, d
         seed=seed,
         device=device,
     )
-    components = list(task_cfg["components"])
-    return TransformedEnv(env, RewardComponents(components, term_keys=component_term_keys(components)))
+    return with_reward_components(env, task_cfg["components"])
