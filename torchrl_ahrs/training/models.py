@@ -66,7 +66,8 @@ def build_actor(
     action_dim = action_spec.shape[-1]
     loc_net = make_mlp(obs_dim, hidden_sizes, action_dim, activation)
     nn.init.orthogonal_(loc_net[-1].weight, 0.01)  # small initial actions keep early rollouts near rest
-    scale = AddStateIndependentNormalScale(action_dim, init_value=float(torch.exp(torch.tensor(init_log_std))))
+    # the parameter is the log standard deviation: scale_mapping="exp" maps it to sigma = exp(init_log_std)
+    scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=float(init_log_std))
     module = TensorDictModule(nn.Sequential(obs_norm, loc_net, scale), in_keys=[in_key], out_keys=["loc", "scale"])
     low, high = action_spec.space.low, action_spec.space.high
     return ProbabilisticActor(
