@@ -19,8 +19,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from torchrl_ahrs.app.auxiliary import infer_aux_task, validate_aux_file
 from torchrl_ahrs.llm.sandbox import check_file
-from torchrl_ahrs.rewards.auxiliary import infer_aux_task, validate_aux_file
 
 
 def _aux_task(args: argparse.Namespace) -> dict | None:
