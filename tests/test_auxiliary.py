@@ -15,8 +15,8 @@ from torchrl.envs.utils import check_env_specs
 
 from torchrl_ahrs.config import ConfigError, resolve_components, validate_config
 from torchrl_ahrs.envs.registry import available_tasks, load_task_config, make_env
-from torchrl_ahrs.llm.sandbox import check_source
-from torchrl_ahrs.llm.sandbox_worker import validate as validate_in_process
+from torchrl_ahrs.sandbox import check_source
+from torchrl_ahrs.sandbox import validate as validate_in_process
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
     TOTAL_AUX,

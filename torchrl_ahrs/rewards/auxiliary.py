@@ -118,7 +118,7 @@ def load_aux_function(path: str | Path, expected_digest: str | None = None) -> A
         ValueError: the sandbox refuses the code, the function is missing, or the file changed since it
             was validated (``expected_digest``).
     """
-    from torchrl_ahrs.llm.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
+    from torchrl_ahrs.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
 
     path = Path(path)
     source = path.read_bytes()
@@ -278,7 +278,7 @@ def validate_aux_file(
     """
     import tempfile
 
-    from torchrl_ahrs.llm.sandbox import Verdict, check_source, validate_in_child
+    from torchrl_ahrs.sandbox import Verdict, check_source, validate_in_child
 
     path = Path(path)
     try:
@@ -312,6 +312,20 @@ def infer_aux_task(path: str | Path) -> str | None:
     if match and match.group(1) in available_tasks():
         return match.group(1)
     return path.stem if path.stem in available_tasks() else None
+
+
+def sandbox_aux_inputs(path: str, task: str | None = None) -> dict[str, torch.Tensor] | None:
+    """Real transitions for ``python -m torchrl_ahrs.sandbox check FILE --kind aux`` (its entry point
+    ``torchrl_ahrs.sandbox.aux_inputs``): of ``task``, else of the task :func:`infer_aux_task` finds;
+    None when neither names one (the sandbox then uses synthetic inputs)."""
+    from omegaconf import OmegaConf
+
+    from torchrl_ahrs.envs.registry import load_task_config
+
+    name = task or infer_aux_task(path)
+    if not name:
+        return None
+    return collect_aux_inputs(OmegaConf.to_container(load_task_config(name), resolve=True))
 
 
 def task_with_auxiliary(cfg: Any, check: bool = True) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from torchrl_ahrs.llm.sandbox import check_file, load_functions
+from torchrl_ahrs.sandbox import check_file, load_functions
 
 DEFAULT_REPOSITORY = Path(__file__).with_name("default_rules.py")
 RULE_ARITY = 4
