@@ -320,7 +320,10 @@ STATIC_HOSTILE = {
     "from-import": ("from subprocess import run\n" + HEAD + "    return mean_returns\n", "import from 'subprocess'"),
     "relative import": ("from . import x\n" + HEAD + "    return mean_returns\n", "import from None"),
     "torch submodule outside the set": ("import torch.utils\n" + HEAD + "    return mean_returns\n", "torch.utils"),
-    "from torch import os": ("from torch import os\n" + HEAD + "    return mean_returns\n", "'os' of torch is a module"),
+    "from torch import os": (
+        "from torch import os\n" + HEAD + "    return mean_returns\n",
+        "'os' of torch is a module",
+    ),
     "__import__": (HEAD + "    return __import__('os').getcwd()\n", '"__import__" is an invalid variable name'),
     "dunder walk": (HEAD + "    return mean_returns.__class__.__mro__[-1].__subclasses__()\n", 'starts with "_"'),
     "dunder globals": (HEAD + "    return rule.__globals__\n", '"__globals__" is an invalid attribute'),
@@ -335,16 +338,34 @@ STATIC_HOSTILE = {
     "type": (HEAD + "    return type(mean_returns)\n", "name 'type' is not allowed"),
     "globals": (HEAD + "    g = globals()\n    return mean_returns\n", "name 'globals' is not allowed"),
     "torch.load": ("import torch\n" + HEAD + "    return torch.load('x.pt')\n", "attribute 'load'"),
-    "torch.save (file write)": ("import torch\n" + HEAD + "    torch.save(mean_returns, '/tmp/x')\n    return mean_returns\n", "attribute 'save'"),
-    "numpy save (file write)": ("import numpy as np\n" + HEAD + "    np.save('/tmp/x', 1)\n    return mean_returns\n", "attribute 'save'"),
+    "torch.save (file write)": (
+        "import torch\n" + HEAD + "    torch.save(mean_returns, '/tmp/x')\n    return mean_returns\n",
+        "attribute 'save'",
+    ),
+    "numpy save (file write)": (
+        "import numpy as np\n" + HEAD + "    np.save('/tmp/x', 1)\n    return mean_returns\n",
+        "attribute 'save'",
+    ),
     "torch.hub": ("import torch\n" + HEAD + "    return torch.hub.load('a', 'b')\n", "attribute 'hub'"),
-    "torch.os.system": ("import torch\n" + HEAD + "    torch.os.system('true')\n    return mean_returns\n", "'os' of torch is a module"),
-    "torch.ops.load_library": ("import torch\n" + HEAD + "    torch.ops.load_library('x.so')\n    return mean_returns\n", "attribute 'load_library'"),
-    "torch.manual_seed": ("import torch\n" + HEAD + "    torch.manual_seed(0)\n    return mean_returns\n", "attribute 'manual_seed'"),
+    "torch.os.system": (
+        "import torch\n" + HEAD + "    torch.os.system('true')\n    return mean_returns\n",
+        "'os' of torch is a module",
+    ),
+    "torch.ops.load_library": (
+        "import torch\n" + HEAD + "    torch.ops.load_library('x.so')\n    return mean_returns\n",
+        "attribute 'load_library'",
+    ),
+    "torch.manual_seed": (
+        "import torch\n" + HEAD + "    torch.manual_seed(0)\n    return mean_returns\n",
+        "attribute 'manual_seed'",
+    ),
     "numpy ctypeslib": ("import numpy as np\n" + HEAD + "    return np.ctypeslib\n", "attribute 'ctypeslib'"),
     "numpy file": ("import numpy as np\n" + HEAD + "    return np.fromfile('x')\n", "attribute 'fromfile'"),
     "tensor method escape": (HEAD + "    return mean_returns.numpy().tofile('x')\n", "attribute 'tofile'"),
-    "storage from file": (HEAD + "    return mean_returns.untyped_storage().from_file('x')\n", "attribute 'untyped_storage'"),
+    "storage from file": (
+        HEAD + "    return mean_returns.untyped_storage().from_file('x')\n",
+        "attribute 'untyped_storage'",
+    ),
     "while": (HEAD + "    while True:\n        pass\n    return mean_returns\n", "While is not allowed"),
     "lambda": (HEAD + "    f = lambda x: x\n    return f(mean_returns)\n", "Lambda is not allowed"),
     "class": ("class A:\n    pass\n" + HEAD + "    return mean_returns\n", "ClassDef"),
@@ -354,8 +375,14 @@ STATIC_HOSTILE = {
     "decorator": ("@staticmethod\n" + HEAD + "    return mean_returns\n", "decorators"),
     "global": (HEAD + "    global x\n    return mean_returns\n", "Global"),
     "f-string": (HEAD + "    s = f'{mean_returns}'\n    return mean_returns\n", "JoinedStr"),
-    "format trick": (HEAD + "    s = '{0.__class__}'.format(mean_returns)\n    return mean_returns\n", "attribute 'format'"),
-    "attribute assignment": ("import torch\n" + HEAD + "    torch.zeros = None\n    return mean_returns\n", "assigning to attribute 'zeros'"),
+    "format trick": (
+        HEAD + "    s = '{0.__class__}'.format(mean_returns)\n    return mean_returns\n",
+        "attribute 'format'",
+    ),
+    "attribute assignment": (
+        "import torch\n" + HEAD + "    torch.zeros = None\n    return mean_returns\n",
+        "assigning to attribute 'zeros'",
+    ),
     "huge power": (HEAD + "    return mean_returns * 10 ** 100000\n", "exponent 100000"),
     "power tower": (HEAD + "    return mean_returns * 2 ** 10 ** 10\n", "tower of exponents"),
     "huge repetition": (HEAD + "    x = [0.0] * 100000000000\n    return mean_returns\n", "integer constant too large"),
@@ -394,7 +421,10 @@ RUNTIME_HOSTILE = {
         HEAD + "    for i in range(int(mean_returns.abs().max()) * 10 ** 9):\n        pass\n    return mean_returns\n",
         "exceeds the sandbox's",
     ),
-    "huge constant range": (HEAD + "    for i in range(10 ** 12):\n        pass\n    return mean_returns\n", "range of"),
+    "huge constant range": (
+        HEAD + "    for i in range(10 ** 12):\n        pass\n    return mean_returns\n",
+        "range of",
+    ),
     "triple loop": (
         HEAD
         + "    t = 0\n    for i in range(1000):\n        for j in range(1000):\n            for k in range(1000):\n"
@@ -402,9 +432,15 @@ RUNTIME_HOSTILE = {
         "more than 1000000 loop iterations",
     ),
     "list of a huge range": (HEAD + "    x = list(range(10 ** 10))\n    return mean_returns\n", "range of"),
-    "memory bomb (tensor)": ("import torch\n" + HEAD + "    x = torch.ones(10 ** 6, 10 ** 5)\n    return mean_returns\n", "memory limit exceeded"),
+    "memory bomb (tensor)": (
+        "import torch\n" + HEAD + "    x = torch.ones(10 ** 6, 10 ** 5)\n    return mean_returns\n",
+        "memory limit exceeded",
+    ),
     "memory bomb (list)": (HEAD + "    block = [0.0] * 10 ** 9\n    return mean_returns\n", "memory limit exceeded"),
-    "write into a module": ("import torch\n" + HEAD + "    m = torch\n    m['zeros'] = 1\n    return mean_returns\n", "writing into module"),
+    "write into a module": (
+        "import torch\n" + HEAD + "    m = torch\n    m['zeros'] = 1\n    return mean_returns\n",
+        "writing into module",
+    ),
     "module reached through a value": (
         "import torch.nn.functional as F\n" + HEAD + "    t = F.torch\n    return t.os.getcwd()\n",
         "'os' of torch is a module outside the sandbox",
@@ -431,14 +467,17 @@ def test_loop_budget_also_holds_in_the_training_process():
     with pytest.raises(SandboxRefusal, match="exceeds"):
         rule(torch.ones(3), None, None, None)
     (rule,) = load_functions(
-        HEAD + "    t = 0\n    for i in range(2000):\n        for j in range(2000):\n            t = t + 1\n    return t\n"
+        HEAD
+        + "    t = 0\n    for i in range(2000):\n        for j in range(2000):\n            t = t + 1\n    return t\n"
     ).values()
     with pytest.raises(SandboxRefusal, match="loop iterations"):
         rule(None, None, None, None)
 
 
 def test_budget_is_per_call():
-    fns = load_functions(HEAD + "    t = 0\n    for i in range(600):\n        t = t + 1\n    return t\n", loop_budget=1000)
+    fns = load_functions(
+        HEAD + "    t = 0\n    for i in range(600):\n        t = t + 1\n    return t\n", loop_budget=1000
+    )
     assert fns["rule"](None, None, None, None) == 600 and fns["rule"](None, None, None, None) == 600
 
 
@@ -452,12 +491,27 @@ UNRESTRICTED_HOSTILE = {
         "    return mean_returns\n",
         "open for writing is refused",
     ),
-    "read a secret": (HEAD + "    open('/etc/passwd').read()\n    return mean_returns\n", "open outside the Python installation"),
-    "socket": ("import socket\n" + HEAD + "    socket.create_connection(('127.0.0.1', 9))\n    return mean_returns\n", "socket."),
-    "os.system": ("import os\n" + HEAD + "    os.system('touch /tmp/torchrl_ahrs_sandbox_probe')\n    return mean_returns\n", "os.system is refused"),
-    "subprocess": ("import subprocess\n" + HEAD + "    subprocess.run(['true'])\n    return mean_returns\n", "subprocess.Popen is refused"),
+    "read a secret": (
+        HEAD + "    open('/etc/passwd').read()\n    return mean_returns\n",
+        "open outside the Python installation",
+    ),
+    "socket": (
+        "import socket\n" + HEAD + "    socket.create_connection(('127.0.0.1', 9))\n    return mean_returns\n",
+        "socket.",
+    ),
+    "os.system": (
+        "import os\n" + HEAD + "    os.system('touch /tmp/torchrl_ahrs_sandbox_probe')\n    return mean_returns\n",
+        "os.system is refused",
+    ),
+    "subprocess": (
+        "import subprocess\n" + HEAD + "    subprocess.run(['true'])\n    return mean_returns\n",
+        "subprocess.Popen is refused",
+    ),
     "fork": ("import os\n" + HEAD + "    os.fork()\n    return mean_returns\n", "os.fork is refused"),
-    "delete a file": ("import os\n" + HEAD + "    os.remove('/tmp/torchrl_ahrs_sandbox_probe')\n    return mean_returns\n", "os.remove is refused"),
+    "delete a file": (
+        "import os\n" + HEAD + "    os.remove('/tmp/torchrl_ahrs_sandbox_probe')\n    return mean_returns\n",
+        "os.remove is refused",
+    ),
     "raise the limits": (
         "import resource\n" + HEAD + "    resource.setrlimit(resource.RLIMIT_CPU, (-1, -1))\n    return mean_returns\n",
         "resource.setrlimit is refused",

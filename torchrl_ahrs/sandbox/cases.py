@@ -55,7 +55,9 @@ def rule_cases(num_components: int | Sequence[int] | None = None, seed: int = 0)
         zeros = torch.zeros(k)
         cases.append((f"all zero K={k}", (zeros, zeros, torch.zeros(HISTORY_LENGTH, k), zeros + 0.5)))
         negative = -torch.arange(1.0, k + 1) * 100
-        cases.append((f"negative, no history K={k}", (negative, zeros, negative.expand(HISTORY_LENGTH, -1), zeros + 0.5)))
+        cases.append(
+            (f"negative, no history K={k}", (negative, zeros, negative.expand(HISTORY_LENGTH, -1), zeros + 0.5))
+        )
     return cases
 
 
@@ -139,7 +141,7 @@ def validate(
         >>> validate("def rule(m, v, h, w):\\n    return m / (m.shape[0] - 1)\\n", "rule", num_components=11)["ok"]
         True
         >>> validate("def rule(m, v, h, w):\\n    return m / (m.shape[0] - 1)\\n", "rule")["reasons"]
-        ["rule: output is not finite (NaN or inf) on input 'all zero K=1'"]
+        ["rule: output is not finite (NaN or inf) on input 'random K=1'"]
     """
     try:
         functions = (loader or load_functions)(source)

@@ -165,7 +165,9 @@ class SandboxPolicy(RestrictingNodeTransformer):
     def visit_Import(self, node):
         for alias in node.names:
             if alias.name not in ALLOWED_MODULES:
-                self.error(node, f"import of {alias.name!r} is not allowed (allowed: {', '.join(sorted(ALLOWED_MODULES))})")
+                self.error(
+                    node, f"import of {alias.name!r} is not allowed (allowed: {', '.join(sorted(ALLOWED_MODULES))})"
+                )
             elif alias.asname:
                 self.modules[alias.asname] = MODULES[alias.name]
             else:

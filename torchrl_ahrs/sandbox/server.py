@@ -108,7 +108,9 @@ def audit_refusal(event: str, args: tuple) -> str | None:
         return f"{event} is refused in the sandbox"
     if event == "open" and args:
         path, mode, flags = (list(args) + [None, None])[:3]
-        if (isinstance(mode, str) and any(c in mode for c in "wax+")) or (isinstance(flags, int) and flags & _WRITE_FLAGS):
+        if (isinstance(mode, str) and any(c in mode for c in "wax+")) or (
+            isinstance(flags, int) and flags & _WRITE_FLAGS
+        ):
             return f"open for writing is refused in the sandbox: {path}"
         if isinstance(path, (str, bytes)):
             text = os.path.realpath(os.fsdecode(path))
@@ -209,7 +211,10 @@ def run_job(request: dict) -> dict:
     if timed_out:
         os.kill(pid, signal.SIGKILL)
         os.waitpid(pid, 0)
-        return {"ok": False, "reasons": [f"validation did not finish within {request['wall_seconds']:g} s of wall time"]}
+        return {
+            "ok": False,
+            "reasons": [f"validation did not finish within {request['wall_seconds']:g} s of wall time"],
+        }
     _, status = os.waitpid(pid, 0)
     try:
         report = json.loads(b"".join(chunks))
