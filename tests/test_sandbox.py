@@ -20,6 +20,7 @@ from torchrl_ahrs.sandbox import (
     validate_in_child,
     validate_source,
 )
+from torchrl_ahrs.sandbox.__main__ import main as cli_main
 from torchrl_ahrs.scheduling.rules import DEFAULT_REPOSITORY
 
 HEAD = "def rule(mean_returns, var_returns, history, previous_weights):\n"
@@ -355,6 +356,10 @@ STATIC_HOSTILE = {
         "import torch\n" + HEAD + "    torch.ops.load_library('x.so')\n    return mean_returns\n",
         "attribute 'load_library'",
     ),
+    "torch.ops.import_module": (
+        "import torch\n" + HEAD + "    torch.ops.import_module('antigravity')\n    return mean_returns\n",
+        "attribute 'import_module'",
+    ),
     "torch.manual_seed": (
         "import torch\n" + HEAD + "    torch.manual_seed(0)\n    return mean_returns\n",
         "attribute 'manual_seed'",
@@ -637,22 +642,32 @@ def test_cli_accepts_shipped_rules_and_refuses_hostile_file(tmp_path):
     assert refused.returncode == 1 and refused.stdout.count("  - ") >= 3, refused.stdout
 
 
-def test_cli_validates_rules_at_the_given_k(tmp_path):
+def test_cli_validates_rules_at_the_given_k(tmp_path, capsys):
     path = tmp_path / "rule.py"
     path.write_text(_source(ORDINARY_RULES["NaN only at K=1 (unbiased std)"]))
-    command = [sys.executable, "-m", "torchrl_ahrs.sandbox", "check", str(path), "--kind", "rule"]
-    assert subprocess.run(command, capture_output=True).returncode == 1  # K = 1 among the defaults
-    assert subprocess.run([*command, "--num-components", "11"], capture_output=True).returncode == 0
+    command = ["check", str(path), "--kind", "rule"]
+    assert cli_main(command) == 1  # K = 1 is among the default sizes
+    assert "not finite" in capsys.readouterr().out
+    assert cli_main([*command, "--num-components", "11"]) == 0
 
 
-def test_cli_validates_aux_on_given_inputs(tmp_path):
+def test_cli_validates_aux_on_given_inputs_or_a_provider(tmp_path, capsys):
     path = tmp_path / "aux.py"
     path.write_text("def compute_aux_reward(obs):\n    return obs['height'] - 1.0\n")
     inputs = tmp_path / "inputs.pt"
     torch.save({"height": torch.ones(8)}, inputs)
-    command = [sys.executable, "-m", "torchrl_ahrs.sandbox", "check", str(path), "--kind", "aux"]
-    finished = subprocess.run([*command, "--inputs", str(inputs)], capture_output=True, text=True)
-    assert finished.returncode == 0, finished.stdout + finished.stderr
+    command = ["check", str(path), "--kind", "aux"]
+    assert cli_main([*command, "--inputs", str(inputs)]) == 0, capsys.readouterr().out
+    asked = []
+
+    def provider(file, task):
+        asked.append((file, task))
+        return {"height": torch.ones(4)}
+
+    assert cli_main([*command, "--task", "somewhere"], provider=provider) == 0
+    assert asked == [(str(path), "somewhere")]
+    assert cli_main(command, provider=lambda file, task: None) == 1  # synthetic inputs have no "height"
+    assert "KeyError" in capsys.readouterr().out
 
 
 def test_aux_kind_validates_reward_shape():

@@ -55,7 +55,8 @@ IMPORT_ROOTS: frozenset[str] = frozenset(name.split(".")[0] for name in ALLOWED_
 # Substrings of attribute names refused on every object: file and code loading (torch.load,
 # np.fromfile, ndarray.tofile, torch.ops.load_library, np.memmap, np.DataSource), process-wide state
 # (torch.manual_seed, torch.set_num_threads, np.seterr, torch.use_deterministic_algorithms), code
-# generation (torch.compile), raw memory (ndarray.ctypes), and str.format (reaches dunder attributes).
+# generation (torch.compile), raw memory (ndarray.ctypes), shared-memory files (Tensor.share_memory_),
+# module imports by name (torch.ops.import_module) and str.format (reaches dunder attributes).
 REFUSED_NAME_PARTS: tuple[str, ...] = (
     "load",
     "save",
@@ -76,6 +77,8 @@ REFUSED_NAME_PARTS: tuple[str, ...] = (
     "hub",
     "library",
     "storage",
+    "share_memory",
+    "import",
 )
 _REFUSED_NAMES = re.compile("|".join(re.escape(part) for part in REFUSED_NAME_PARTS), re.IGNORECASE)
 

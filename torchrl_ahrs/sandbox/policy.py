@@ -27,6 +27,7 @@ from __future__ import annotations
 import ast
 import builtins
 import copy
+import types
 from dataclasses import dataclass, field
 
 from RestrictedPython import compile_restricted_exec
@@ -264,7 +265,7 @@ def _top_level_refusals(tree: ast.Module) -> tuple[list[str], list[str]]:
     return reasons, functions
 
 
-def compile_checked(source: str, filename: str = "<llm>") -> tuple[Verdict, object | None]:
+def compile_checked(source: str, filename: str = "<llm>") -> tuple[Verdict, types.CodeType | None]:
     """(verdict, code object) for ``source``; the code object is None when the verdict refuses.
 
     Example:

@@ -174,7 +174,7 @@ def load_functions(source: str, filename: str = "<llm>", loop_budget: int = LOOP
         [2.0, 4.0]
     """
     verdict, code = compile_checked(source, filename)
-    if not verdict.ok:
+    if not verdict.ok or code is None:
         raise ValueError("sandbox refused the code:\n" + "\n".join(verdict.reasons))
     budget = LoopBudget(loop_budget)
     namespace = restricted_globals(budget)

@@ -171,7 +171,10 @@ def _child(request: dict, result_fd: int) -> None:
 def _signal_reason(status: int) -> str:
     if os.WIFSIGNALED(status):
         number = os.WTERMSIG(status)
-        why = {signal.SIGKILL: "killed (CPU-time or memory limit)", signal.SIGXCPU: "CPU-time limit exceeded"}
+        why: dict[int, str] = {
+            signal.SIGKILL: "killed (CPU-time or memory limit)",
+            signal.SIGXCPU: "CPU-time limit exceeded",
+        }
         return f"validation process {why.get(number, f'killed by signal {signal.Signals(number).name}')}"
     return f"validation process exited with status {os.WEXITSTATUS(status)} without a report"
 
