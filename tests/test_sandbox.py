@@ -714,3 +714,16 @@ def test_the_sandbox_imports_nothing_above_it():
     )
     finished = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert finished.stdout.strip() == "[]", finished.stdout + finished.stderr
+
+
+def _check_in_forked_process() -> bool:
+    return check(HEAD + "    return mean_returns * 3\n", "rule", num_components=2).ok
+
+
+def test_a_forked_process_starts_its_own_worker_and_leaves_the_parents_alone():
+    import multiprocessing
+
+    assert check(HEAD + "    return mean_returns\n", "rule", num_components=2).ok  # the parent's worker runs
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_check_in_forked_process)
+    assert check(HEAD + "    return mean_returns * 2\n", "rule", num_components=2).ok

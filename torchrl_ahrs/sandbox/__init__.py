@@ -43,7 +43,7 @@ Example:
 
 from torchrl_ahrs.sandbox.cases import AUX_FUNCTION, RULE_ARITY, aux_cases, check_output, rule_cases, validate
 from torchrl_ahrs.sandbox.guards import ALLOWED_MODULES, SandboxRefusal
-from torchrl_ahrs.sandbox.isolation import check, check_file, validate_in_child, validate_source
+from torchrl_ahrs.sandbox.isolation import check, check_file, start_worker, validate_in_child, validate_source
 from torchrl_ahrs.sandbox.policy import Verdict, check_source
 from torchrl_ahrs.sandbox.runtime import LoopBudget, load_functions
 
@@ -61,6 +61,7 @@ __all__ = [
     "check_source",
     "load_functions",
     "rule_cases",
+    "start_worker",
     "validate",
     "validate_in_child",
     "validate_source",

@@ -56,6 +56,7 @@ class _Worker:
             env=_worker_environment(),
         )
         self.started = False
+        self.owner = os.getpid()  # a forked copy of this process must not share the pipes
 
     def _read_exactly(self, size: int, deadline: float) -> bytes:
         stdout = self.process.stdout
@@ -108,7 +109,7 @@ _worker: _Worker | None = None
 def _shutdown() -> None:
     global _worker
     with _lock:
-        if _worker is not None:
+        if _worker is not None and _worker.owner == os.getpid():
             _worker.close()
             _worker = None
 
@@ -116,19 +117,43 @@ def _shutdown() -> None:
 atexit.register(_shutdown)
 
 
+def start_worker() -> None:
+    """Starts the worker now, without waiting for it (it imports torch in the background).
+
+    A caller that will check code soon (a generator before its first LLM call, training before it
+    builds environments) calls this first, so the first check does not wait for the start.
+
+    Example:
+        >>> start_worker()
+        >>> check("def rule(m, v, h, w):\\n    return m\\n", "rule", num_components=2).ok
+        True
+    """
+    with _lock:
+        _ensure_worker()
+
+
+def _ensure_worker() -> _Worker:
+    """The running worker of this process (started if needed); call with ``_lock`` held."""
+    global _worker
+    if _worker is not None and _worker.owner != os.getpid():
+        _worker = None  # inherited through fork (e.g. a collector process): start our own
+    if _worker is None or _worker.process.poll() is not None:
+        _worker = _Worker()
+    return _worker
+
+
 def _run(request: dict) -> dict:
     """One request through the (re)started worker; a dead or stuck worker is replaced next time."""
     global _worker
     payload = pickle.dumps(request)
     with _lock:
-        if _worker is None or _worker.process.poll() is not None:
-            _worker = _Worker()
+        worker = _ensure_worker()
         try:
-            reply = _worker.request(payload, timeout=float(request["wall_seconds"]) + 10.0)
+            reply = worker.request(payload, timeout=float(request["wall_seconds"]) + 10.0)
         except (OSError, EOFError, TimeoutError) as error:
-            tail = _worker.stderr_tail()
-            _worker.process.kill()
-            _worker.close()
+            tail = worker.stderr_tail()
+            worker.process.kill()
+            worker.close()
             _worker = None
             return {"ok": False, "reasons": [f"sandbox worker failed ({error}){': ' + tail if tail else ''}"]}
     try:
