@@ -32,7 +32,7 @@ from importlib.metadata import entry_points
 
 import torch
 
-from torchrl_ahrs.sandbox.isolation import check_file
+from torchrl_ahrs.sandbox.isolation import check_file, start_worker
 
 INPUTS_GROUP = "torchrl_ahrs.sandbox.aux_inputs"
 
@@ -41,13 +41,28 @@ InputsProvider = Callable[[str, "str | None"], "Mapping[str, torch.Tensor] | Non
 
 
 def installed_provider() -> InputsProvider | None:
-    """The transitions provider registered under :data:`INPUTS_GROUP`, if a package registers one."""
+    """The transitions provider registered under :data:`INPUTS_GROUP`, if a package registers one.
+
+    Example:
+        >>> provider = installed_provider()
+        >>> provider is None or callable(provider)
+        True
+    """
     found = list(entry_points(group=INPUTS_GROUP))
     return found[0].load() if found else None
 
 
 def main(argv: list[str] | None = None, provider: InputsProvider | None = None) -> int:
-    """Runs the command line; ``provider`` overrides the registered transitions provider (tests, embedding)."""
+    """Runs the command line; ``provider`` overrides the registered transitions provider (tests, embedding).
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.NamedTemporaryFile("w", suffix=".py") as aux:
+        ...     _ = aux.write("def compute_aux_reward(obs):\\n    return obs['x'] * 2\\n"); aux.flush()
+        ...     main(["check", aux.name, "--kind", "aux"], provider=lambda file, task: {"x": torch.ones(4)})
+        accepted: ... (aux; functions: compute_aux_reward)
+        0
+    """
     parser = argparse.ArgumentParser(prog="python -m torchrl_ahrs.sandbox", description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     check = commands.add_parser("check", help="check a file of LLM-written code")
@@ -58,6 +73,8 @@ def main(argv: list[str] | None = None, provider: InputsProvider | None = None) 
     check.add_argument("--inputs", default=None, help="aux: torch.save'd dict of real transitions")
     check.add_argument("--task", default=None, help="aux: validate on real transitions of this task")
     args = parser.parse_args(argv)
+    if not args.static_only:
+        start_worker()  # its start (importing torch) overlaps reading the file and collecting transitions
     inputs = None
     try:
         if args.kind == "aux" and not args.static_only:

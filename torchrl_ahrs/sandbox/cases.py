@@ -25,7 +25,12 @@ HISTORY_LENGTH = 5
 
 
 class CpuLimitExceeded(Exception):
-    """Raised from the child's SIGXCPU handler so the failing function is named in the report."""
+    """Raised from the child's SIGXCPU handler so the failing function is named in the report.
+
+    Example:
+        >>> isinstance(CpuLimitExceeded("CPU-time limit exceeded"), Exception)
+        True
+    """
 
 
 def rule_cases(num_components: int | Sequence[int] | None = None, seed: int = 0) -> list[tuple[str, tuple]]:

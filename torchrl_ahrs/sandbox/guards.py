@@ -116,7 +116,12 @@ def attribute_refusal(obj: Any, name: str) -> str | None:
 
 
 class SandboxRefusal(RuntimeError):
-    """Raised while sandboxed code runs and reaches something it may not (message: the one-line reason)."""
+    """Raised while sandboxed code runs and reaches something it may not (message: the one-line reason).
+
+    Example:
+        >>> str(SandboxRefusal("attribute 'load' is not allowed"))
+        "attribute 'load' is not allowed"
+    """
 
 
 def guarded_getattr(obj: Any, name: str, default: Any = None) -> Any:

@@ -88,6 +88,11 @@ class SandboxPolicy(RestrictingNodeTransformer):
 
     ``bound`` (set per check by :func:`check_source`) holds the names the code binds itself; ``modules``
     maps the names imports bind to the real module, to resolve dotted names statically.
+
+    Example:
+        >>> from RestrictedPython import compile_restricted_exec
+        >>> compile_restricted_exec("def f(x):\\n    while x:\\n        pass\\n", policy=SandboxPolicy).errors[0][:29]
+        'Line 2: While is not allowed '
     """
 
     bound: frozenset[str] = frozenset()

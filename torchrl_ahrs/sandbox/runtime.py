@@ -58,7 +58,12 @@ class LoopBudget:
             yield item
 
     def range(self, *args: int) -> range:
-        """``range`` that refuses more items than the budget (``list(range(10**10))`` never runs)."""
+        """``range`` that refuses more items than the budget (``list(range(10**10))`` never runs).
+
+        Example:
+            >>> LoopBudget(limit=5).range(2, 4)
+            range(2, 4)
+        """
         items = range(*args)
         try:
             size = len(items)
@@ -124,7 +129,13 @@ SAFE_BUILTINS.update({"True": True, "False": False, "None": None})
 
 
 def restricted_globals(budget: LoopBudget) -> dict[str, Any]:
-    """The global namespace sandboxed code runs in (fresh per load: module state is not shared)."""
+    """The global namespace sandboxed code runs in (fresh per load: module state is not shared).
+
+    Example:
+        >>> namespace = restricted_globals(LoopBudget())
+        >>> "open" in namespace["__builtins__"], namespace["_getiter_"].__name__
+        (False, 'iterate')
+    """
     table = dict(SAFE_BUILTINS)
     table["__import__"] = restricted_import
     table["range"] = budget.range

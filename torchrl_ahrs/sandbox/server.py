@@ -130,7 +130,15 @@ def _on_cpu_limit(signum, frame):
 
 
 def install_limits(cpu_seconds: int, memory_bytes: int) -> None:
-    """Lowers this process's limits (see the module docstring); only ever called in a forked child."""
+    """Lowers this process's limits (see the module docstring); only ever called in a forked child.
+
+    Example:
+        >>> import subprocess, sys
+        >>> code = ("import resource; from torchrl_ahrs.sandbox.server import install_limits; "
+        ...         "install_limits(1, 1 << 28); print(resource.getrlimit(resource.RLIMIT_FSIZE))")
+        >>> subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout
+        '(0, 0)\\n'
+    """
     used = resource.getrusage(resource.RUSAGE_SELF)
     cpu_now = int(used.ru_utime + used.ru_stime) + 1
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_now + cpu_seconds, cpu_now + cpu_seconds + 1))
@@ -180,7 +188,14 @@ def _signal_reason(status: int) -> str:
 
 
 def run_job(request: dict) -> dict:
-    """Forks one limited child for ``request`` and returns its report (or why there is none)."""
+    """Forks one limited child for ``request`` and returns its report (or why there is none).
+
+    Example:
+        >>> request = {"source": "def rule(m, v, h, w):\\n    return m\\n", "kind": "rule", "num_components": 2,
+        ...            "inputs": None, "cpu_seconds": 2, "memory_bytes": 1 << 30, "wall_seconds": 20}
+        >>> run_job(request)["ok"]
+        True
+    """
     read_fd, write_fd = os.pipe()
     pid = os.fork()
     if pid == 0:  # child: never returns into the server loop
@@ -227,7 +242,19 @@ def run_job(request: dict) -> dict:
 
 
 def serve(stdin: BinaryIO, stdout: BinaryIO) -> None:
-    """Answers requests until the parent closes stdin (also when the parent dies)."""
+    """Answers requests until the parent closes stdin (also when the parent dies).
+
+    Example:
+        >>> import io, json, pickle
+        >>> from torchrl_ahrs.sandbox.protocol import read_message
+        >>> request = {"source": "def rule(m, v, h, w):\\n    return m\\n", "kind": "rule", "num_components": 2,
+        ...            "inputs": None, "cpu_seconds": 2, "memory_bytes": 1 << 30, "wall_seconds": 20}
+        >>> requests, replies = io.BytesIO(), io.BytesIO()
+        >>> write_message(requests, pickle.dumps(request)); _ = requests.seek(0)
+        >>> serve(requests, replies); _ = replies.seek(0)
+        >>> json.loads(read_message(replies))["ok"]
+        True
+    """
     torch.set_num_threads(1)  # no intra-op thread pool exists before the first fork
     while (message := read_message(stdin)) is not None:
         try:
