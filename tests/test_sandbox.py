@@ -318,6 +318,8 @@ STATIC_HOSTILE = {
     "import os": ("import os\n" + HEAD + "    return mean_returns\n", "import of 'os'"),
     "import sys": ("import sys\n" + HEAD + "    return mean_returns\n", "import of 'sys'"),
     "import socket": ("import socket\n" + HEAD + "    return mean_returns\n", "import of 'socket'"),
+    "import operator (attrgetter)": ("import operator\n" + HEAD + "    return mean_returns\n", "import of 'operator'"),
+    "import importlib": ("import importlib\n" + HEAD + "    return mean_returns\n", "import of 'importlib'"),
     "from-import": ("from subprocess import run\n" + HEAD + "    return mean_returns\n", "import from 'subprocess'"),
     "relative import": ("from . import x\n" + HEAD + "    return mean_returns\n", "import from None"),
     "torch submodule outside the set": ("import torch.utils\n" + HEAD + "    return mean_returns\n", "torch.utils"),
@@ -465,6 +467,7 @@ def test_running_hostile_code_is_stopped_in_the_child(label):
     assert check_source(source).ok  # the static gate lets these through ...
     verdict = check(source, "rule", num_components=3)  # ... the guards and the child do not
     assert not verdict.ok and reason in " ".join(verdict.reasons), verdict.reasons
+    assert all("\n" not in text for text in verdict.reasons)
 
 
 def test_loop_budget_also_holds_in_the_training_process():

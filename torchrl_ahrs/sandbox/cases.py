@@ -151,7 +151,8 @@ def validate(
     try:
         functions = (loader or load_functions)(source)
     except Exception as error:  # noqa: BLE001
-        return {"ok": False, "reasons": [f"could not load: {type(error).__name__}: {error}"], "functions": []}
+        message = " ".join(f"could not load: {type(error).__name__}: {error}".split())
+        return {"ok": False, "reasons": [message], "functions": []}
     reasons: list[str] = []
     if kind == "rule":
         targets = {name: fn for name, fn in functions.items() if len(inspect.signature(fn).parameters) == RULE_ARITY}
@@ -182,6 +183,7 @@ def validate(
                 else:
                     problem = f"raised {type(error).__name__}: {str(error)[:200]}"
             if problem is not None:
+                problem = " ".join(problem.split())  # one line, whatever the exception's message looked like
                 reasons.append(f"{name}: {problem} on input '{label}'")
                 break  # one reason per function is enough to refuse it
     return {"ok": not reasons, "reasons": reasons, "functions": list(targets)}
