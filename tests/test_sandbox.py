@@ -482,6 +482,47 @@ def test_loop_budget_also_holds_in_the_training_process():
         rule(None, None, None, None)
 
 
+def test_sandboxed_code_cannot_change_its_callers_tensors_or_shared_library_state():
+    source = (
+        "import numpy as np\n"
+        "import torch\n"
+        "def compute_aux_reward(obs):\n"
+        "    obs['observation'][:, 0] = 100.0\n"
+        "    obs['action'].mul_(0.0)\n"
+        "    codes = np.typecodes\n"
+        "    codes['All'] = 'broken'\n"
+        "    normal = torch.distributions.Normal(0.0, 1.0)\n"
+        "    normal.arg_constraints.clear()\n"
+        "    return obs['observation'][:, 0]\n"
+    )
+    (aux,) = load_functions(source).values()
+    obs = {"observation": torch.zeros(3, 2), "action": torch.ones(3, 1)}
+    reward = aux(obs)
+    assert reward.tolist() == [100.0, 100.0, 100.0]
+    assert obs["observation"].abs().sum() == 0 and obs["action"].sum() == 3  # the caller's tensors are untouched
+    import numpy
+
+    assert numpy.typecodes["All"] != "broken"
+    assert torch.distributions.Normal.arg_constraints  # the class's dict is untouched
+    reward[0] = -1.0
+    assert obs["observation"][0, 0] == 0  # and the output does not alias the input
+
+
+def test_one_function_called_from_two_threads_counts_each_call_alone():
+    import threading
+
+    (rule,) = load_functions(
+        HEAD + "    t = 0\n    for i in range(600000):\n        t = t + 1\n    return t\n", loop_budget=1_000_000
+    ).values()  # long enough for the threads to interleave: a shared count would pass the budget
+    results = []
+    threads = [threading.Thread(target=lambda: results.append(rule(None, None, None, None))) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert results == [600000] * 4
+
+
 def test_budget_is_per_call():
     fns = load_functions(
         HEAD + "    t = 0\n    for i in range(600):\n        t = t + 1\n    return t\n", loop_budget=1000

@@ -17,6 +17,7 @@ The rules are deliberately coarse, so they do not need a list of every safe torc
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 import types
@@ -115,6 +116,9 @@ def attribute_refusal(obj: Any, name: str) -> str | None:
     return None
 
 
+_SHARED_CONTAINERS = (dict, list, set, bytearray)
+
+
 class SandboxRefusal(RuntimeError):
     """Raised while sandboxed code runs and reaches something it may not (message: the one-line reason).
 
@@ -128,7 +132,8 @@ def guarded_getattr(obj: Any, name: str, default: Any = None) -> Any:
     """RestrictedPython's ``_getattr_``: :func:`attribute_refusal`, then ``safer_getattr``.
 
     ``safer_getattr`` (the library's) refuses ``_`` names, ``str.format`` and frame/traceback
-    attributes; this adds the module and name rules of this module.
+    attributes; this adds the module and name rules of this module, and hands out copies of the
+    dicts and lists that modules and classes hold (shared library state).
 
     Example:
         >>> guarded_getattr(math, "sqrt")(4.0)
@@ -141,7 +146,22 @@ def guarded_getattr(obj: Any, name: str, default: Any = None) -> Any:
     refusal = attribute_refusal(obj, name) if isinstance(name, str) else None
     if refusal is not None:
         raise SandboxRefusal(refusal)
-    return safer_getattr(obj, name, default)
+    value = safer_getattr(obj, name, default)
+    if isinstance(value, _SHARED_CONTAINERS) and not _own_attribute(obj, name):
+        # a module's or class's dict/list is state every user of the library shares (np.typecodes,
+        # Normal(0, 1).arg_constraints): sandboxed code reads a copy, its writes stay its own
+        return copy.copy(value)
+    return value
+
+
+def _own_attribute(obj: Any, name: str) -> bool:
+    """Whether ``name`` lives in ``obj``'s own instance dict (not a module's, not inherited from a class)."""
+    if isinstance(obj, (types.ModuleType, type)):
+        return False
+    try:
+        return name in vars(obj)
+    except TypeError:  # no __dict__
+        return False
 
 
 WRITABLE_TYPES = (torch.Tensor, numpy.ndarray, list, dict, set)

@@ -19,9 +19,12 @@ import builtins
 import functools
 import importlib
 import operator
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
+import numpy
+import torch
 from RestrictedPython.Guards import guarded_iter_unpack_sequence, guarded_unpack_sequence
 from RestrictedPython.PrintCollector import PrintCollector
 
@@ -47,13 +50,29 @@ class LoopBudget:
 
     def __init__(self, limit: int = LOOP_BUDGET):
         self.limit = limit
-        self.steps = 0
-        self.depth = 0
+        self._calls = threading.local()  # a function called from two threads counts each call alone
+
+    @property
+    def steps(self) -> int:
+        return getattr(self._calls, "steps", 0)
+
+    @steps.setter
+    def steps(self, value: int) -> None:
+        self._calls.steps = value
+
+    @property
+    def depth(self) -> int:
+        return getattr(self._calls, "depth", 0)
+
+    @depth.setter
+    def depth(self, value: int) -> None:
+        self._calls.depth = value
 
     def iterate(self, iterable: Iterable) -> Iterator:
+        calls = self._calls
         for item in iter(iterable):
-            self.steps += 1
-            if self.steps > self.limit:
+            calls.steps = getattr(calls, "steps", 0) + 1
+            if calls.steps > self.limit:
                 raise SandboxRefusal(f"more than {self.limit} loop iterations in one call")
             yield item
 
@@ -153,8 +172,33 @@ def restricted_globals(budget: LoopBudget) -> dict[str, Any]:
     }
 
 
+def private_copy(value: Any) -> Any:
+    """``value`` with every tensor and array cloned and every dict/list/tuple rebuilt.
+
+    Sandboxed code gets its arguments through this, so an in-place edit (``obs["observation"][:, 0] =
+    0``, ``x.mul_(0)``) changes its own copy, never the environment's tensors or the scheduler's
+    statistics, and a returned tensor never aliases the caller's.
+
+    Example:
+        >>> original = {"x": torch.zeros(2)}
+        >>> copy = private_copy(original); copy["x"][0] = 1.0
+        >>> original["x"].tolist()
+        [0.0, 0.0]
+    """
+    if isinstance(value, torch.Tensor):
+        return value.detach().clone()
+    if isinstance(value, numpy.ndarray):
+        return value.copy()
+    if isinstance(value, dict):
+        return {key: private_copy(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(private_copy(item) for item in value)
+    return value
+
+
 def _budgeted(fn: Callable, budget: LoopBudget) -> Callable:
-    """``fn`` with the loop budget reset at each outermost call (helpers share their caller's budget)."""
+    """``fn`` with private copies of its arguments and the loop budget reset at each outermost call
+    (helpers called from inside share their caller's budget)."""
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
@@ -162,7 +206,7 @@ def _budgeted(fn: Callable, budget: LoopBudget) -> Callable:
             budget.steps = 0
         budget.depth += 1
         try:
-            return fn(*args, **kwargs)
+            return fn(*private_copy(args), **private_copy(kwargs))
         finally:
             budget.depth -= 1
 
@@ -173,7 +217,8 @@ def load_functions(source: str, filename: str = "<llm>", loop_budget: int = LOOP
     """Executes statically accepted ``source`` in the restricted namespace; returns its top-level functions.
 
     Each returned function keeps its name, docstring and signature (``inspect.signature`` follows
-    ``__wrapped__``) and runs under a fresh :class:`LoopBudget` per call.
+    ``__wrapped__``), runs under a fresh :class:`LoopBudget` per call and works on private copies of
+    its arguments (:func:`private_copy`).
 
     Raises:
         ValueError: when the static gate refuses the code (the message lists every reason).
