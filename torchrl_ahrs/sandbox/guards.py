@@ -18,6 +18,7 @@ The rules are deliberately coarse, so they do not need a list of every safe torc
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import re
 import types
@@ -84,6 +85,7 @@ REFUSED_NAME_PARTS: tuple[str, ...] = (
 _REFUSED_NAMES = re.compile("|".join(re.escape(part) for part in REFUSED_NAME_PARTS), re.IGNORECASE)
 
 
+@functools.lru_cache(maxsize=4096)  # called on every attribute access of running sandboxed code
 def name_refusal(name: str) -> str | None:
     """Why the attribute ``name`` is refused on any object, or None.
 
