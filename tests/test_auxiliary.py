@@ -16,8 +16,6 @@ from torchrl.envs.utils import check_env_specs
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs, validate_aux_file
 from torchrl_ahrs.app.config import ConfigError, resolve_components, validate_config
 from torchrl_ahrs.envs.registry import available_tasks, load_task_config, make_env
-from torchrl_ahrs.llm.sandbox import check_source
-from torchrl_ahrs.llm.sandbox_worker import validate as validate_in_process
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
     TOTAL_AUX,
@@ -27,6 +25,8 @@ from torchrl_ahrs.rewards.auxiliary import (
     load_aux_function,
     shipped_aux_path,
 )
+from torchrl_ahrs.sandbox import check_source
+from torchrl_ahrs.sandbox import validate as validate_in_process
 from torchrl_ahrs.train import train
 
 FAST = [
@@ -225,8 +225,8 @@ def test_endless_loop_is_stopped_by_the_cpu_limit_in_the_child(tmp_path):
     path = tmp_path / "aux.py"
     path.write_text(
         HEAD
-        + "    x = obs['reward.total']\n    for i in range(10000):\n        for j in range(10000):\n"
-        + "            x = x + 1.0\n    return x\n"
+        + "    x = obs['reward.total']\n    m = torch.rand(300, 300)\n    for i in range(100000):\n"
+        + "        m = torch.tanh(m @ m)\n    return x + m.sum()\n"  # heavy steps: the CPU limit, not the loop budget
     )
     verdict = validate_aux_file(path, task_dict("point_reach"), num_envs=2, steps=2)
     assert not verdict.ok and "CPU-time limit" in " ".join(verdict.reasons)

@@ -30,8 +30,8 @@ from torchrl_ahrs.generate_rules import extract_code_blocks
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
 from torchrl_ahrs.llm.generation import generation_output_dir
-from torchrl_ahrs.llm.sandbox import check_source, validate_in_child
 from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, load_aux_function
+from torchrl_ahrs.sandbox import check_source, validate_in_child
 
 # The Python that computes each task's reward terms ("module:qualified name"); tasks whose terms come
 # from EnvPool's C++ have none and the prompt says so.

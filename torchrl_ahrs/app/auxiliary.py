@@ -20,8 +20,7 @@ from omegaconf import OmegaConf
 from torchrl.envs.transforms import Transform
 
 from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.envs.registry import available_tasks, make_env
-from torchrl_ahrs.llm.sandbox import Verdict, check_source, validate_in_child
+from torchrl_ahrs.envs.registry import available_tasks, load_task_config, make_env
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
     AUX_FUNCTION,
@@ -32,6 +31,7 @@ from torchrl_ahrs.rewards.auxiliary import (
     flatten_inputs,
     shipped_aux_path,
 )
+from torchrl_ahrs.sandbox import Verdict, check_source, validate_in_child
 
 log = logging.getLogger("torchrl_ahrs.aux")
 TransformFactory = Callable[[], Transform]
@@ -129,6 +129,17 @@ def infer_aux_task(path: str | Path) -> str | None:
     if match and match.group(1) in available_tasks():
         return match.group(1)
     return path.stem if path.stem in available_tasks() else None
+
+
+def sandbox_aux_inputs(path: str, task: str | None = None) -> dict[str, torch.Tensor] | None:
+    """Real transitions for ``python -m torchrl_ahrs.sandbox check FILE --kind aux`` (registered as the
+    entry point ``torchrl_ahrs.sandbox.aux_inputs``, so the sandbox needs no import of the tasks): of
+    ``task``, else of the task :func:`infer_aux_task` finds; None when neither names one (the sandbox
+    then uses synthetic inputs)."""
+    name = task or infer_aux_task(path)
+    if not name:
+        return None
+    return collect_aux_inputs(OmegaConf.to_container(load_task_config(name), resolve=True))
 
 
 def auxiliary_transform(cfg: Any, check: bool = True) -> TransformFactory | None:

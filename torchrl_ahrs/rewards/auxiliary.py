@@ -118,7 +118,7 @@ def load_aux_function(path: str | Path, expected_digest: str | None = None) -> A
         ValueError: the sandbox refuses the code, the function is missing, or the file changed since it
             was validated (``expected_digest``).
     """
-    from torchrl_ahrs.llm.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
+    from torchrl_ahrs.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
 
     path = Path(path)
     source = path.read_bytes()

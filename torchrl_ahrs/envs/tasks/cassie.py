@@ -46,8 +46,8 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from torchrl_ahrs.envs.common import legged_rewards as lr
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.common import legged_rewards as lr
 from torchrl_ahrs.envs.tasks.cassie_model import LEG_JOINTS, CassieLayout, load_cassie_model
 
 OBS_SCALES = {"lin_vel": 2.0, "ang_vel": 0.25, "dof_pos": 1.0, "dof_vel": 0.05}
