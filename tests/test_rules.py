@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from torchrl_ahrs.scheduling.rules import DEFAULT_REPOSITORY, load_repository, normalise_scores
 
 REPO = load_repository()
+HDPG = load_repository("hdpg")
 ONES = torch.ones(3)
 E = math.e
 
@@ -39,17 +40,28 @@ CASES = [
 ]
 
 
-def test_default_repository_has_the_papers_eight_rules_plus_hdpg():
-    assert len(REPO) == 9
-    assert [rule.id for rule in REPO] == list(range(1, 10))
-    assert REPO[1].name == "Mean Returns Only" and REPO[9].key == "hdpg"
+PAPER_NAMES = {  # the names the paper's rule-selection prompt (appendix A) and figure 4 give
+    1: "Mean Returns Only",
+    2: "Variance Returns Only",
+    3: "Combined Mean and Variance Returns",
+    4: "Improvement Rate Only",
+    5: "Formula 1",
+    6: "Formula 2",
+}
+
+
+def test_default_repository_has_the_papers_eight_rules_and_hdpg_lives_apart():
+    assert len(REPO) == 8 and [rule.id for rule in REPO] == list(range(1, 9))
+    for rule_id, name in PAPER_NAMES.items():
+        assert name in REPO[rule_id].name, (rule_id, REPO[rule_id].name)
     assert all(rule.text and rule.math for rule in REPO)
-    assert {case[0] for case in CASES} == {rule.key for rule in REPO}
+    assert [rule.key for rule in HDPG] == ["hdpg"]
+    assert {case[0] for case in CASES} == {rule.key for rule in REPO} | {"hdpg"}
 
 
 @pytest.mark.parametrize("key, mean, var, history, expected", CASES, ids=[case[0] for case in CASES])
 def test_shipped_rule_on_hand_computed_input(key, mean, var, history, expected):
-    rule = REPO.get(key)
+    rule = (HDPG if key == "hdpg" else REPO).get(key)
     weights = rule.weights(
         torch.tensor(mean, dtype=torch.float32), torch.tensor(var, dtype=torch.float32), history, ONES, 0.5
     )
@@ -60,7 +72,7 @@ def test_shipped_rule_on_hand_computed_input(key, mean, var, history, expected):
 def test_first_decision_without_history_gives_uniform_improvement_rules():
     mean = torch.tensor([5.0, -3.0, 2.0])
     for key in ("improvement_rate_only", "noise_adjusted_improvement", "hdpg"):
-        weights = REPO.get(key).weights(mean, torch.ones(3), mean.expand(5, 3), ONES, 0.5)
+        weights = (HDPG if key == "hdpg" else REPO).get(key).weights(mean, torch.ones(3), mean.expand(5, 3), ONES, 0.5)
         assert torch.allclose(weights, torch.full((3,), 0.5 + 1 / 3)), key
 
 

@@ -675,7 +675,7 @@ def test_cli_accepts_shipped_rules_and_refuses_hostile_file(tmp_path):
         text=True,
     )
     assert accepted.returncode == 0, accepted.stdout + accepted.stderr
-    assert "accepted" in accepted.stdout and "hdpg" in accepted.stdout
+    assert "accepted" in accepted.stdout and "mean_returns_only" in accepted.stdout
     hostile = tmp_path / "hostile.py"
     hostile.write_text(STATIC_HOSTILE["dunder walk"][0].replace("rule(", "a(") + STATIC_HOSTILE["import os"][0])
     refused = subprocess.run(

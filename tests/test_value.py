@@ -65,7 +65,7 @@ def test_component_normalisation_makes_each_column_standard_before_mixing():
     weights = torch.zeros(K)
     weights[4] = 1.0
     estimator = WeightedMultiGAE(
-        NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic(), weights=weights, normalize_components=True
+        NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic(), weights=weights, component_scale="standardize"
     )
     mixed = estimator(make_batch())["advantage"]
     assert mixed.mean().abs() < 1e-5

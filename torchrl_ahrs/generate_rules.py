@@ -27,7 +27,7 @@ from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
 from torchrl_ahrs.llm.generation import generation_output_dir
 from torchrl_ahrs.llm.prompts import rule_generation_prompt
 from torchrl_ahrs.sandbox import check_source, validate_in_child
-from torchrl_ahrs.scheduling.rules import DEFAULT_REPOSITORY, RULE_ARITY, load_repository
+from torchrl_ahrs.scheduling.rules import HDPG_REPOSITORY, RULE_ARITY, load_repository
 
 _CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)
 HEADER_IMPORTS = "import math\n\nimport torch\n"
@@ -99,8 +99,8 @@ def validate_rules(constants: list[str], rules: dict[str, str]) -> GenerationRes
 
 
 def hdpg_example() -> str:
-    """The HD-PPO rule's source from the shipped repository (the prompt's example)."""
-    source = DEFAULT_REPOSITORY.read_text()
+    """The HD-PPO rule's source from its shipped one-rule repository (the prompt's example)."""
+    source = HDPG_REPOSITORY.read_text()
     node = next(n for n in ast.parse(source).body if isinstance(n, ast.FunctionDef) and n.name == "hdpg")
     return ast.get_source_segment(source, node)
 

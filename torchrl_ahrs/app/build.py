@@ -100,7 +100,7 @@ def build_estimator_and_loss(cfg: DictConfig, networks: Networks, components: Se
         gamma=ppo.gamma,
         lmbda=ppo.lmbda,
         value_network=networks.critic,
-        normalize_components=ppo.normalize_components,
+        component_scale=ppo.component_scale,
     )
     loss = HybridClipPPOLoss(
         networks.actor,

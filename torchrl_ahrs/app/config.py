@@ -39,6 +39,7 @@ RENAMED_KEYS = {
     "ppo.critic_coef": "ppo.critic_coeff",
     "trainer.rollout_steps": "trainer.frames_per_batch (= num_envs x steps per environment)",
     "trainer.num_minibatches": "trainer.mini_batch_size (= frames_per_batch / minibatches)",
+    "ppo.normalize_components": "ppo.component_scale (raw | standardize | value_norm)",
     "device": "nothing: networks and environments run on the CPU",
 }
 
@@ -77,7 +78,8 @@ def validate_config(cfg: DictConfig) -> None:
         "trainer.mini_batch_size": trainer.mini_batch_size,
         "trainer.workers": trainer.workers,
         "trainer.torch_threads": trainer.torch_threads,
-        "scheduler.interval": cfg.scheduler.interval,
+        "scheduler.interval": cfg.scheduler.interval if cfg.scheduler.get("interval") is not None else 1,
+        "scheduler.decisions": cfg.scheduler.get("decisions", 1),
         "scheduler.history_length": cfg.scheduler.history_length,
     }
     if not isinstance(cfg.checkpoint.interval, int) or cfg.checkpoint.interval < 0:

@@ -11,6 +11,7 @@ One iteration, step by step (``Trainer.train``'s hook points in brackets)::
                        -> advantage_components [N,T,K], value_target [N,T,K], advantage = Σ_k w_k A_k
     4. PPO epochs      [process_optim_batch] shuffled minibatches -> HybridClipPPOLoss -> Adam (clipped)
        [post_optim_complete_log] loss_metrics: train/<loss term>
+       [post_steps_log] ComponentShareLog: share/<c> = w_k std(A'_k) / sum_j w_j std(A'_j)
     5. after update    [post_steps] ObservationNormUpdate.apply, LinearLRDecay, UpdateWeights (collector)
     6. schedule        [post_steps] RuleScheduler: every `interval` iterations stats -> rule -> w_k
     7. checkpoint      [post_steps] CheckpointHook: everything in the trainer's registry, atomically
@@ -56,6 +57,7 @@ from torchrl_ahrs.app.video import register_video_log
 from torchrl_ahrs.scheduling.scheduler import DECISIONS_FILE
 from torchrl_ahrs.training.hooks import (
     ComponentReturnLog,
+    ComponentShareLog,
     FiniteGuard,
     LinearLRDecay,
     ObservationNormUpdate,
@@ -112,6 +114,7 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
     # 3-4. advantages and PPO epochs
     PPOMinibatches(parts["estimator"], num_minibatches(cfg), seed=int(cfg.seed)).register(trainer)
     trainer.register_op("post_optim_complete_log", loss_metrics)
+    ComponentShareLog(parts["components"], parts["estimator"]).register(trainer)  # share/<c> after the epochs
     # 5. after the update: normalisers absorb the batch, learning rate, policy weights to the collector
     obs_norm.register(trainer)
     if critic_norm is not None:

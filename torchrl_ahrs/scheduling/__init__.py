@@ -6,8 +6,9 @@ ready :class:`RuleScheduler`:
 * ``cfg.method.selector``: ``constant`` | ``fixed`` (with ``cfg.method.rule``) | ``random`` |
   ``bandit`` | ``llm`` | ``direct``. ``llm`` and ``direct`` need ``cfg.llm.model``; with ``llm=offline``
   (no model) the ``bandit`` selector stands in and the run says so at start and in every decision.
-* ``cfg.scheduler``: ``interval``, ``history_length``, ``base_weight``, ``rules`` (a repository file,
-  null = the shipped one), ``blocking``.
+* ``cfg.scheduler``: ``interval`` (null: derived from ``decisions``, see :func:`decision_interval`),
+  ``history_length``, ``base_weight``, ``weight_mapping`` with ``temperature`` / ``clamp``, ``rules``
+  (a repository file; null = the shipped one named by ``cfg.method.repository``), ``blocking``.
 * ``cfg.method.initial_weights``: weights before the first decision (null = ``base_weight``).
 """
 
@@ -19,6 +20,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.scheduling.mapping import WeightMapping
 from torchrl_ahrs.scheduling.rules import Rule, RuleRepository, load_repository, normalise_scores
 from torchrl_ahrs.scheduling.scheduler import RuleScheduler
 from torchrl_ahrs.scheduling.selectors import (
@@ -45,7 +47,10 @@ __all__ = [
     "RuleScheduler",
     "Selector",
     "Summary",
+    "WeightMapping",
     "build_scheduler",
+    "decision_interval",
+    "weight_mapping",
     "build_selector",
     "load_repository",
     "normalise_scores",
@@ -63,6 +68,38 @@ def _select(cfg: Any, key: str, default: Any = None) -> Any:
 def llm_is_offline(cfg: Any) -> bool:
     """True when no LLM is configured (``llm=offline`` or no ``llm`` section / no ``llm.model``)."""
     return _select(cfg, "llm.name", "offline") == "offline" or not _select(cfg, "llm.model")
+
+
+def decision_interval(cfg: Any) -> int:
+    """Training iterations between decisions: ``scheduler.interval``, or, when it is null,
+    ``max(1, iterations // scheduler.decisions)`` with ``iterations = total_frames // frames_per_batch``,
+    so a run of any length makes at least ``decisions`` decisions.
+
+    Example:
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"trainer": {"total_frames": 1_000_000, "frames_per_batch": 2048},
+        ...                         "scheduler": {"interval": None, "decisions": 15}})
+        >>> decision_interval(cfg), 1_000_000 // 2048 // decision_interval(cfg)
+        (32, 15)
+    """
+    interval = _select(cfg, "scheduler.interval")
+    if interval is not None:
+        return int(interval)
+    iterations = int(_select(cfg, "trainer.total_frames", 0)) // int(_select(cfg, "trainer.frames_per_batch", 1))
+    return max(1, iterations // int(_select(cfg, "scheduler.decisions", 15)))  # I // D
+
+
+def weight_mapping(cfg: Any) -> WeightMapping:
+    """The :class:`WeightMapping` of ``cfg.scheduler`` (``weight_mapping``, ``base_weight``,
+    ``temperature``, ``clamp: [min, max]``)."""
+    clamp = _select(cfg, "scheduler.clamp", [0.0, 10.0])
+    return WeightMapping(
+        str(_select(cfg, "scheduler.weight_mapping", "minshift_sum")),
+        float(_select(cfg, "scheduler.base_weight", 0.5)),
+        temperature=float(_select(cfg, "scheduler.temperature", 1.0)),
+        clamp_min=float(clamp[0]),
+        clamp_max=float(clamp[1]),
+    )
 
 
 def build_selector(
@@ -94,7 +131,7 @@ def build_selector(
     if name in LLM_SELECTORS:
         from torchrl_ahrs.scheduling.llm_selectors import build_llm_selector
 
-        return build_llm_selector(name, cfg, repository, components, run_dir), note
+        return build_llm_selector(name, cfg, repository, components, run_dir, decision_interval(cfg)), note
     raise ValueError(f"unknown selector {name!r}; choose constant, fixed, random, bandit, llm or direct")
 
 
@@ -112,11 +149,15 @@ def build_scheduler(
         ...     weights = torch.ones(2)
         ...     def set_weights(self, w): self.weights = w.clone()
         >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"], run_dir=None)
-        >>> sched.selector.name, sched.interval, sched.weights.tolist()
-        ('fixed', 2, [0.5, 0.5])
+        >>> sched.selector.name, sched.interval, sched.weights.tolist(), len(sched.repository)
+        ('fixed', 2, [0.5, 0.5], 1)
     """
     rules_path = _select(cfg, "scheduler.rules")
-    repository = load_repository(rules_path, validate=rules_path is not None)
+    if rules_path is None:  # a shipped repository: the paper's 8 rules, or HD-PPO's rule for hdppo(_a)
+        shipped = _select(cfg, "method.repository", "hdpg" if _select(cfg, "method.rule") == "hdpg" else "ahrs")
+        repository = load_repository(shipped, num_components=len(components))
+    else:
+        repository = load_repository(rules_path, validate=True, num_components=len(components))
     run_dir = Path(run_dir) if run_dir is not None else None
     selector, note = build_selector(cfg, repository, list(components), run_dir)
     initial = _select(cfg, "method.initial_weights")
@@ -125,7 +166,7 @@ def build_scheduler(
         list(components),
         repository,
         selector,
-        interval=int(_select(cfg, "scheduler.interval", 100)),
+        interval=decision_interval(cfg),
         base_weight=float(_select(cfg, "scheduler.base_weight", 0.5)),
         history_length=int(_select(cfg, "scheduler.history_length", 5)),
         initial_weights=list(initial) if initial is not None else None,
@@ -133,14 +174,16 @@ def build_scheduler(
         logger=logger,
         run_dir=run_dir,
         note=note,
+        mapping=weight_mapping(cfg),
     )
     log.info(
-        "RuleScheduler: selector=%s, %d rules from %s (digest %s), interval=%d, components=%s",
+        "RuleScheduler: selector=%s, %d rules from %s (digest %s), interval=%d, %s, components=%s",
         selector.name,
         len(repository),
         repository.source_path,
         repository.digest(),
         scheduler.interval,
+        scheduler.mapping.describe(),
         list(components),
     )
     return scheduler

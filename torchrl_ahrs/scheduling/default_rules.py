@@ -1,9 +1,13 @@
 """Default AHRS rule repository (written in this project from the paper's rule descriptions).
 
-provenance: hand-written for torchrl_ahrs; rules 1-6 follow the names and descriptions of the AHRS
-paper (Mean Returns Only, Variance Returns Only, Combined Mean and Variance, Improvement Rate Only,
-"Formula 1", "Formula 2"), rules 7-8 are ours in the same spirit, rule 9 is our reading of HD-PPO's
-unpublished rule.
+provenance: hand-written for torchrl_ahrs, standing in for the paper's LLM-generated repository (its
+figure 5 is an image we do not have). The paper's rule-selection prompt (appendix A) names rules 1-4
+(Mean Returns Only, Variance Returns Only, Combined Mean and Variance Returns, Improvement Rate Only)
+and figure 4 shows "Formula 1" (log means with adjusted variances) and "Formula 2" (alpha/beta
+balance of mean and variance); they are rules 1-6 here, under those names. The paper's prompt asks
+for one of 8 rules but does not name rules 7 and 8: ours are in the same spirit. HD-PPO's rule is not
+in this repository (the paper's AHRS and AHRS-R choose among 8): it is ``hdpg_rule.py``, used by
+``hdppo`` / ``hdppo_a``.
 
 Format of a repository file (LLM-generated files use the same one): plain Python accepted by
 ``python -m torchrl_ahrs.sandbox check FILE --kind rule``. Every top-level function with four
@@ -104,15 +108,3 @@ def noise_adjusted_improvement(mean_returns, var_returns, history, previous_weig
     math: s_k = (mu_k - H_{-1,k}) / sqrt(1 + sigma2_k)
     """
     return (mean_returns - history[-1]) / torch.sqrt(1.0 + var_returns)  # (mu - H_-1) / sqrt(1 + sigma2)
-
-
-def hdpg(mean_returns, var_returns, history, previous_weights):
-    """HDPG Improvement Rate (HD-PPO)
-
-    Our reading of HD-PPO's rule: prioritise the components whose returns accumulate fastest, i.e. the
-    improvement of each mean return relative to its previous summary.
-
-    math: s_k = (mu_k - H_{-1,k}) / (|H_{-1,k}| + eps)
-    """
-    previous = history[-1]
-    return (mean_returns - previous) / (torch.abs(previous) + EPS)  # (mu - H_-1) / (|H_-1| + eps)

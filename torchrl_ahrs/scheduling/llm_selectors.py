@@ -139,14 +139,20 @@ class DirectWeightSelector(_LLMSelectorBase):
 
 
 def build_llm_selector(
-    name: str, cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
+    name: str,
+    cfg: Any,
+    repository: RuleRepository,
+    components: list[str],
+    run_dir: Path | None,
+    interval: int | None = None,
 ) -> Selector:
-    """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``)."""
+    """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``);
+    ``interval`` is the run's decision interval in iterations (default ``cfg.scheduler.interval``)."""
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
     client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
     task = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
     base_weight = float(cfg.scheduler.base_weight)
-    interval = int(cfg.scheduler.interval)
+    interval = int(interval if interval is not None else cfg.scheduler.interval)
     if name == "llm":
         return LLMRuleSelector(client, repository, task, components, base_weight, interval)
     return DirectWeightSelector(client, task, components, base_weight, interval)

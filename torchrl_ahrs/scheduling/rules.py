@@ -1,16 +1,9 @@
 """Weight rules and rule repositories.
 
 A rule maps per-component statistics to raw scores ``s [K]``; the scheduler turns them into weights
-
-    w_k = base_weight + n_k,   n = normalise_scores(s)
-
-``normalise_scores`` shifts the scores so the smallest is 0 and divides by their sum:
-
-    n_k = (s_k - min_j s_j) / sum_i (s_i - min_j s_j)
-
-so ``n`` is non-negative, sums to 1, keeps the rules' ranking, and does not depend on the scale or
-offset of the scores (a rule on returns in the thousands and one on rates in [0, 1] behave alike).
-When all scores are equal (spread below ``1e-9`` of their magnitude) the result is uniform ``1/K``.
+with a :class:`~torchrl_ahrs.scheduling.mapping.WeightMapping` (``scheduler.weight_mapping``:
+``minshift_sum``, ``softmax`` or the paper's ``w = base + s`` with a clamp). ``normalise_scores`` is
+the min-shift sum normalisation ``n_k = (s_k - min_j s_j) / sum_i (s_i - min_j s_j)``.
 
 A repository is a Python file in the sandbox's subset (see ``default_rules.py`` for the format). It is
 loaded with :func:`load_repository` through the sandbox's restricted execution, so a file written by
@@ -29,8 +22,11 @@ from pathlib import Path
 import torch
 
 from torchrl_ahrs.sandbox import check_file, load_functions
+from torchrl_ahrs.scheduling.mapping import WeightMapping, minshift_sum
 
 DEFAULT_REPOSITORY = Path(__file__).with_name("default_rules.py")
+HDPG_REPOSITORY = Path(__file__).with_name("hdpg_rule.py")
+SHIPPED_REPOSITORIES = {"ahrs": DEFAULT_REPOSITORY, "hdpg": HDPG_REPOSITORY}
 RULE_ARITY = 4
 
 RuleFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
@@ -80,9 +76,12 @@ class Rule:
             raise ValueError(f"rule {self.key!r} returned non-finite scores {raw.tolist()}")
         return raw
 
-    def weights(self, mean_returns, var_returns, history, previous_weights, base_weight: float) -> torch.Tensor:
-        """Final weights ``[K]``: ``base_weight + normalise_scores(scores)``."""
-        return base_weight + normalise_scores(self.scores(mean_returns, var_returns, history, previous_weights))
+    def weights(
+        self, mean_returns, var_returns, history, previous_weights, base_weight: float = 0.5, mapping=None
+    ) -> torch.Tensor:
+        """Final weights ``[K]``: ``mapping(scores)`` (default: ``base_weight + normalise_scores(scores)``)."""
+        mapping = mapping if mapping is not None else WeightMapping("minshift_sum", base_weight)
+        return mapping(self.scores(mean_returns, var_returns, history, previous_weights))
 
     def describe(self) -> str:
         """The rule as it appears in prompts: ``"3. Name: text (math)"``."""
@@ -98,12 +97,7 @@ def normalise_scores(scores: torch.Tensor) -> torch.Tensor:
         >>> normalise_scores(torch.tensor([7.0, 7.0])).tolist()
         [0.5, 0.5]
     """
-    scores = scores.to(torch.float64)
-    shifted = scores - scores.min()  # s_k - min_j s_j  >= 0
-    total = shifted.sum()  # sum_i (s_i - min_j s_j)
-    if not torch.isfinite(total) or total <= 1e-9 * max(1.0, scores.abs().max().item()):
-        return torch.full_like(scores, 1.0 / scores.numel()).float()  # ties: uniform 1/K
-    return (shifted / total).float()  # n_k = (s_k - min s) / sum (s - min s)
+    return minshift_sum(scores.to(torch.float64)).float()  # n_k = (s_k - min s) / sum (s - min s)
 
 
 def normalise_direct(values: torch.Tensor) -> torch.Tensor:
@@ -125,8 +119,8 @@ class RuleRepository:
 
     Example:
         >>> repo = load_repository()
-        >>> len(repo), repo[9].key
-        (9, 'hdpg')
+        >>> len(repo), repo[8].key, load_repository("hdpg")[1].key
+        (8, 'noise_adjusted_improvement', 'hdpg')
     """
 
     def __init__(self, rules: list[Rule], source_path: Path | None = None, provenance: str = ""):
@@ -198,7 +192,8 @@ def load_repository(
     """Loads a repository file (default: the shipped ``default_rules.py``).
 
     Args:
-        path: a Python file in the sandbox's subset; ``None`` = the shipped repository.
+        path: a Python file in the sandbox's subset, or the name of a shipped repository (``"ahrs"``:
+            the paper's 8 rules, ``"hdpg"``: HD-PPO's rule alone); ``None`` = ``"ahrs"``.
         validate: also run the sandbox's child-process validation (~1 s for the sandbox worker's
             first start, milliseconds after; do it for files written by an LLM that were not
             checked when generated).
@@ -208,7 +203,9 @@ def load_repository(
     Raises:
         ValueError: the sandbox refused the file (every reason is in the message).
     """
-    path = Path(path) if path is not None else DEFAULT_REPOSITORY
+    if path is None or str(path) in SHIPPED_REPOSITORIES:
+        path = SHIPPED_REPOSITORIES[str(path or "ahrs")]
+    path = Path(path)
     if validate:
         verdict = check_file(path, "rule", num_components=num_components)
         if not verdict.ok:

@@ -6,8 +6,7 @@ Registered on a TorchRL :class:`~torchrl.trainers.Trainer` it runs at two places
   ``[M, K]``, go into :class:`~torchrl_ahrs.scheduling.stats.ReturnStatistics`; the current weights
   and rule id are returned for the trainer's logger.
 * ``post_steps`` (every training iteration): every ``interval`` iterations a decision is made:
-  ``w = base_weight + normalise(rule(mean [K], var [K], history [L, K], previous_weights [K]))`` is
-  installed with ``estimator.set_weights(w)``.
+  ``w = mapping(rule(mean [K], var [K], history [L, K], previous_weights [K]))`` is installed with ``estimator.set_weights(w)``.
 
 Guards (each one keeps the current weights and says why in the log):
   * no episode finished since the last decision;
@@ -36,7 +35,8 @@ from torchrl.trainers import TrainerHookBase
 
 from torchrl_ahrs.llm.client import FatalSelectorError
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
-from torchrl_ahrs.scheduling.rules import RuleRepository, normalise_direct
+from torchrl_ahrs.scheduling.mapping import WeightMapping
+from torchrl_ahrs.scheduling.rules import RuleRepository
 from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
@@ -61,13 +61,14 @@ class RuleScheduler(TrainerHookBase):
         repository: the rules a selector may pick.
         selector: decides at every decision point (constant, fixed, random, bandit, llm, direct).
         interval: training iterations between decisions.
-        base_weight: ``w_k = base_weight + n_k``.
+        base_weight: ``w_base`` (used when ``mapping`` is not given: ``minshift_sum`` with this base).
         history_length: L, earlier summaries shown to rules and selectors.
         initial_weights: weights ``[K]`` installed at construction (default ``base_weight`` each).
         blocking: ``False`` runs the selector in a background thread.
         logger: optional TorchRL logger (``log_scalar``) for decision scalars.
         run_dir: where ``scheduler_decisions.jsonl`` is written (one line per decision point).
         note: text attached to every decision log (e.g. that the bandit stands in for an LLM).
+        mapping: rule scores -> weights (:class:`~torchrl_ahrs.scheduling.mapping.WeightMapping`).
 
     Example:
         >>> import torch
@@ -101,6 +102,7 @@ class RuleScheduler(TrainerHookBase):
         logger: Any = None,
         run_dir: str | Path | None = None,
         note: str = "",
+        mapping: WeightMapping | None = None,
     ):
         if interval < 1:
             raise ValueError(f"interval must be at least 1, got {interval}")
@@ -109,7 +111,8 @@ class RuleScheduler(TrainerHookBase):
         self.repository = repository
         self.selector = selector
         self.interval = int(interval)
-        self.base_weight = float(base_weight)
+        self.mapping = mapping if mapping is not None else WeightMapping("minshift_sum", float(base_weight))
+        self.base_weight = self.mapping.base_weight
         self.blocking = blocking
         self.logger = logger
         self.run_dir = Path(run_dir) if run_dir is not None else None
@@ -222,11 +225,11 @@ class RuleScheduler(TrainerHookBase):
             return
         try:
             if decision.weights is not None:
-                weights = self.base_weight + normalise_direct(decision.weights)  # w = base + x / sum x
+                weights = self.mapping.direct(decision.weights)  # e.g. w = base + x / sum x
                 rule_id = None
             else:
                 rule = self.repository[decision.rule_id]
-                weights = rule.weights(context.mean, context.var, context.history, self.weights, self.base_weight)
+                weights = self.mapping(rule.scores(context.mean, context.var, context.history, self.weights))
                 rule_id = rule.id
         except Exception as error:  # noqa: BLE001 (a rule failure must not stop training)
             self._record(decision, f"{decision.note} rule failed ({type(error).__name__}: {error}); weights kept")

@@ -180,6 +180,32 @@ class ComponentReturnLog(TrainerHookBase):
         trainer.register_module(name, self)
 
 
+class ComponentShareLog:
+    """Logs each component's effective share of the mixed advantage, ``share/<c>``, once per iteration.
+
+    Registered at ``post_steps_log`` (after the epochs), it reads the estimator's ``shares [K]``,
+    ``w_k std(A'_k) / sum_j w_j std(A'_j)`` from the last advantage computation of the iteration.
+
+    Example:
+        >>> import torch
+        >>> class Estimator:
+        ...     shares = torch.tensor([0.25, 0.75])
+        >>> ComponentShareLog(["a", "b"], Estimator())(None)
+        {'share/a': 0.25, 'share/b': 0.75}
+    """
+
+    def __init__(self, components: Sequence[str], estimator: Any):
+        self.components = list(components)
+        self.estimator = estimator
+
+    def __call__(self, batch: TensorDictBase | None) -> dict[str, float]:
+        shares = self.estimator.shares.tolist()
+        return {f"share/{name}": share for name, share in zip(self.components, shares, strict=True)}
+
+    def register(self, trainer: Trainer) -> None:
+        trainer.register_op("post_steps_log", self)
+
+
 def loss_metrics(optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, float] | None:
     """PPO diagnostics averaged over the iteration's minibatches, under ``train/``."""
     if average_losses is None:

@@ -17,6 +17,35 @@ def normalize_components(advantages: torch.Tensor, eps: float = 1e-8) -> torch.T
     return (advantages - mean) / (std + eps)  # A_k <- (A_k - mu_k) / (sigma_k + eps)
 
 
+def scale_by(advantages: torch.Tensor, std: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """Divides each component's advantage by a given scale: ``[*B, K], [K] -> [*B, K]`` (no centring).
+
+    Example:
+        >>> scale_by(torch.tensor([[2.0, 30.0]]), torch.tensor([2.0, 10.0]))
+        tensor([[1., 3.]])
+    """
+    return advantages / (std + eps)  # A_k <- A_k / (sigma_k + eps)
+
+
+def effective_shares(advantages: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Each component's share of the mixed advantage's spread: ``[*B, K], [K] -> [K]``, summing to 1.
+
+    ``share_k = |w_k| std(A_k) / sum_j |w_j| std(A_j)``, with ``A`` the advantages as they are mixed.
+
+    Example:
+        >>> a = torch.tensor([[1.0, 10.0], [-1.0, -10.0]])
+        >>> effective_shares(a, torch.tensor([1.0, 1.0])).tolist()
+        [0.09090909361839294, 0.9090909361839294]
+    """
+    flat = advantages.reshape(-1, advantages.shape[-1])
+    spread = flat.std(0) if flat.shape[0] > 1 else flat.abs().mean(0)  # std(A_k) over the batch
+    contribution = weights.abs() * spread  # |w_k| std(A_k)
+    total = contribution.sum()  # sum_j |w_j| std(A_j)
+    if not torch.isfinite(total) or total <= 0:
+        return torch.full_like(contribution, 1.0 / contribution.numel())  # no spread at all: uniform
+    return contribution / total  # share_k
+
+
 def mix_advantages(advantages: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     """Weighted sum over components: ``[*B, K], [K] -> [*B, 1]``.
 

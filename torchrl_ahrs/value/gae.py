@@ -11,7 +11,15 @@ from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torchrl.objectives.value import GAE
 
-from torchrl_ahrs.value.functional import mix_advantages, normalize_components, stack_components
+from torchrl_ahrs.value.functional import (
+    effective_shares,
+    mix_advantages,
+    normalize_components,
+    scale_by,
+    stack_components,
+)
+
+COMPONENT_SCALES = ("raw", "standardize", "value_norm")
 
 
 class WeightedMultiGAE(GAE):
@@ -25,9 +33,17 @@ class WeightedMultiGAE(GAE):
     - ``"value_target"`` ``[*B, T, K]``: each head's regression target;
     - ``"advantage"`` ``[*B, T, 1]``: ``Σ_k w_k A_k`` — the signal the policy is trained on.
 
-    With ``normalize_components=True`` each ``A_k`` is standardised over the batch before mixing, so the
-    weights alone (not the reward scales) decide each component's share of the gradient; the
-    unnormalised ``A_k`` stay in ``"advantage_components"``.
+    ``component_scale`` says how each ``A_k`` is scaled before mixing (the unscaled ``A_k`` stay in
+    ``"advantage_components"``):
+
+    - ``"raw"``: as GAE gives it, so the reward scales, not the weights, decide each component's share;
+    - ``"standardize"``: ``(A_k - mean) / std`` over the batch, so the weights alone decide the shares;
+    - ``"value_norm"``: ``A_k / sigma_k`` with ``sigma_k`` a running std of head ``k``'s value target
+      (exponential average over calls, decay ``scale_decay``): the scale a value-normalised critic
+      keeps, steadier than one batch's std and without centring.
+
+    After every call ``shares`` ``[K]`` holds each component's effective share of the mixed advantage,
+    ``w_k std(A'_k) / sum_j w_j std(A'_j)`` with ``A'`` the scaled advantages (logged as ``share/<c>``).
 
     ``weights`` is a registered buffer ``[K]`` (checkpointed with the module); replace it any time with
     :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward_tree``, ``reward``,
@@ -38,7 +54,8 @@ class WeightedMultiGAE(GAE):
         gamma, lmbda: GAE discount and lambda.
         value_network: a module writing ``"state_value"`` ``[*B, T, K]``.
         weights: initial ``[K]`` weights (default all ones).
-        normalize_components: standardise each component's advantage before mixing.
+        component_scale: ``"raw"`` | ``"standardize"`` | ``"value_norm"`` (see above).
+        scale_decay: ``value_norm`` only: decay of the running target variance per call.
         **kwargs: forwarded to :class:`torchrl.objectives.value.GAE`.
 
     Example:
@@ -58,6 +75,8 @@ class WeightedMultiGAE(GAE):
         >>> td = gae(td)
         >>> td["advantage_components"].shape, td["advantage"].shape
         (torch.Size([4, 8, 2]), torch.Size([4, 8, 1]))
+        >>> round(gae.shares.sum().item(), 4)
+        1.0
     """
 
     @dataclass
@@ -84,15 +103,23 @@ class WeightedMultiGAE(GAE):
         lmbda: float,
         value_network: TensorDictModule | None,
         weights: torch.Tensor | None = None,
-        normalize_components: bool = False,
+        component_scale: str = "raw",
+        scale_decay: float = 0.99,
         **kwargs,
     ):
         super().__init__(gamma=gamma, lmbda=lmbda, value_network=value_network, **kwargs)
         self.components = list(components)
         if not self.components:
             raise ValueError("WeightedMultiGAE needs at least one component")
-        self.normalize_components = normalize_components
+        if component_scale not in COMPONENT_SCALES:
+            raise ValueError(f"component_scale must be one of {', '.join(COMPONENT_SCALES)}, got {component_scale!r}")
+        self.component_scale = component_scale
+        self.scale_decay = float(scale_decay)
         self.register_buffer("weights", torch.ones(len(self.components)))
+        self.register_buffer("shares", torch.full((len(self.components),), 1.0 / len(self.components)))
+        self.register_buffer("target_mean", torch.zeros(len(self.components)))
+        self.register_buffer("target_var", torch.ones(len(self.components)))
+        self.register_buffer("target_calls", torch.zeros((), dtype=torch.long))
         if weights is not None:
             self.set_weights(weights)
 
@@ -124,9 +151,29 @@ class WeightedMultiGAE(GAE):
         super().forward(tensordict, **kwargs)
         component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
         tensordict.set(self.tensor_keys.advantage_components, component_advantages)
-        to_mix = normalize_components(component_advantages) if self.normalize_components else component_advantages
+        to_mix = self.scale_components(component_advantages, tensordict.get(self.tensor_keys.value_target))
+        self.shares.copy_(effective_shares(to_mix, self.weights))  # [K]
         tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
         return tensordict
+
+    def scale_components(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """``advantages [*B, T, K]`` scaled by ``component_scale``; ``targets [*B, T, K]`` feed ``value_norm``."""
+        if self.component_scale == "standardize":
+            return normalize_components(advantages)
+        if self.component_scale == "raw":
+            return advantages
+        flat = targets.reshape(-1, targets.shape[-1]).to(self.target_var.dtype)
+        if self.target_calls == 0:
+            self.target_mean.copy_(flat.mean(0))
+            self.target_var.copy_(flat.var(0, unbiased=False))
+        else:
+            decay = self.scale_decay
+            self.target_mean.mul_(decay).add_((1 - decay) * flat.mean(0))  # m <- d m + (1 - d) E[G]
+            self.target_var.mul_(decay).add_(
+                (1 - decay) * (flat - self.target_mean).pow(2).mean(0)
+            )  # v <- d v + (1-d) E[(G-m)^2]
+        self.target_calls += 1
+        return scale_by(advantages, self.target_var.sqrt())  # A_k / sigma_k
 
     def _prepare_signals(self, reward, done, terminated, value):
         # TorchRL's recursion broadcasts silently; a critic with the wrong number of heads must fail loudly.
