@@ -89,7 +89,7 @@ def test_valid_answer_selects_rule_and_logs_call_without_secret(server, tmp_path
     assert entry["parsed"] == 7 and entry["error"] is None and entry["tokens"]["total_tokens"] == 105
     assert entry["model"] == "openai/test-model" and len(entry["prompt_hash"]) == 64 and entry["latency"] > 0
     prompt = entry["prompt"][0]["content"]
-    assert "Mean Returns Only" in prompt and "~[1]~" in prompt and "1 to 9" in prompt and "[1, 2, 4]" in prompt
+    assert "Mean Returns Only" in prompt and "~[1]~" in prompt and "1 to 8" in prompt and "[1, 2, 4]" in prompt
     assert server.requests[0]["auth"] == f"Bearer {SECRET}"  # the key reaches the server ...
     assert SECRET not in (tmp_path / CALLS_FILE).read_text()  # ... and never the log
 
@@ -112,7 +112,7 @@ def test_out_of_range_twice_keeps_previous_rule(server, tmp_path):
     assert scheduler.rule_id == 1
     feed(scheduler, [4.0, 2.0, 1.0])  # both answers out of range: rule 1 stays, recomputed on new stats
     assert scheduler.rule_id == 1 and scheduler.weights.tolist() == pytest.approx([0.5 + 3 / 4, 0.5 + 1 / 4, 0.5])
-    assert [entry["parse_error"] for entry in calls(tmp_path)[1:]] == ["rule 42 is out of range 1..9"] * 2
+    assert [entry["parse_error"] for entry in calls(tmp_path)[1:]] == ["rule 42 is out of range 1..8"] * 2
     assert "invalid LLM answer twice" in decisions(tmp_path)[-1]["message"]
     assert "previous rule 1 stays" in decisions(tmp_path)[-1]["message"]
 
@@ -180,11 +180,11 @@ def run_schedule(config, run_dir, rounds=6):
 
 
 def test_replay_reproduces_a_schedule_without_the_server(server, tmp_path):
-    server.script = [("ok", f"~[{n}]~") for n in (3, 1, 9, 9, 2)] + [("ok", "no idea"), ("ok", "~[6]~")]
+    server.script = [("ok", f"~[{n}]~") for n in (3, 1, 8, 8, 2)] + [("ok", "no idea"), ("ok", "~[6]~")]
     base = {"name": "openai", "model": "openai/test-model", "api_base": f"http://127.0.0.1:{server.port}/v1"}
     base.update(api_key_env="TEST_LLM_KEY", timeout=0.6, max_retries=0, backoff=0.0)
     recorded = run_schedule(base, tmp_path / "recorded")
-    assert [rule for rule, _ in recorded] == [3, 1, 9, 9, 2, 6]
+    assert [rule for rule, _ in recorded] == [3, 1, 8, 8, 2, 6]
     server.close()
     replayed = run_schedule(
         {"name": "replay", "model": "replay", "replay_from": str(tmp_path / "recorded")}, tmp_path / "replay"

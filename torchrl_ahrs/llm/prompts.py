@@ -1,10 +1,14 @@
 """Prompt templates (our wording of the AHRS paper's appendix A, following its structure).
 
-* :func:`rule_selection_prompt` — "Rules' selection": task, components, framework, environment, the
-  rules, the current and historical statistics and weights; the answer is ``~[N]~``.
+* :func:`rule_selection_prompt` — "Rules' selection": task description, each component's meaning,
+  framework, environment code, each component's reward code, the rules, the current and historical
+  statistics and weights; the answer is ``~[N]~``.
 * :func:`direct_weights_prompt` — AHRS-D: the same material, but the answer is K weights ``~[w1, ..., wK]~``.
-* :func:`rule_generation_prompt` — "Build rule repository": task, components, the HD-PPO rule as the
-  example; the answer is Python code blocks in the repository format.
+* :func:`rule_generation_prompt` — "Build rule repository": task, components with meanings and reward
+  code, the HD-PPO rule as the example; the answer is Python code blocks in the repository format.
+
+Task text (description, meanings, reward and environment code read from our implementation with
+``inspect.getsource``) comes from :mod:`torchrl_ahrs.llm.task_text`.
 * :func:`correction_message` — the one corrective retry after an unreadable answer.
 
 Each ``*_prompt`` returns chat messages ``[{"role": ..., "content": ...}]``; the exact text is
@@ -14,7 +18,10 @@ deterministic for given inputs, so the cache and replay can match it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
+
+from torchrl_ahrs.llm.task_text import component_meanings, environment_code, reward_code_blocks
 
 SEPARATOR = "=" * 36
 
@@ -26,10 +33,15 @@ INTRO = (
 FRAMEWORK = (
     "Training uses Proximal Policy Optimization (PPO) with the reward split into {k} components. Each "
     "component has its own value head, so each has its own advantage estimate A_k. The policy is updated with "
-    "the weighted advantage sum_k w_k * A_k, where w_k = {base} + n_k and n_k >= 0, sum_k n_k = 1 come from a "
-    "weight rule applied to the statistics of each component's episode returns. Changing the weights changes "
-    "which skills the policy improves first."
+    "the weighted advantage sum_k w_k * A_k. A weight rule turns the statistics of each component's episode "
+    "returns into scores s_k, and the weights are {mapping}. Changing the weights changes which skills the "
+    "policy improves first."
 )
+
+
+def _framework(k: int, base: float, mapping_text: str | None) -> str:
+    mapping = mapping_text or f"w_k = {base} + n_k with n_k >= 0, sum_k n_k = 1 (n: the scores normalised)"
+    return "Algorithm framework: " + FRAMEWORK.format(k=k, mapping=mapping)
 
 
 def _fmt(values: Sequence[float]) -> str:
@@ -37,12 +49,16 @@ def _fmt(values: Sequence[float]) -> str:
 
 
 def task_section(task: Mapping[str, Any], components: Sequence[str]) -> str:
-    """Task description and the components' meanings (``task.component_descriptions`` if given)."""
+    """Task description and the components' meanings (``task.component_descriptions``; ``aux`` explained).
+
+    Example:
+        >>> print(task_section({"description": "Walk.", "component_descriptions": {"v": "speed"}}, ["v"])[:40])
+        Task description: Walk.
+        The reward has 1
+    """
     lines = [f"Task description: {str(task.get('description', task.get('name', 'a robot task'))).strip()}"]
-    descriptions = task.get("component_descriptions") or {}
-    lines.append(f"The reward has {len(components)} components, in this order:")
-    for index, name in enumerate(components, start=1):
-        meaning = descriptions.get(name, "") if hasattr(descriptions, "get") else ""
+    lines.append(f"The reward has {len(components)} components, in this order. Their physical meanings:")
+    for index, (name, meaning) in enumerate(component_meanings(task, components).items(), start=1):
         lines.append(f"{index}. {name}" + (f": {meaning}" if meaning else ""))
     lines.append(
         "How much each component matters changes over training, so adjusting their weights from stage to stage "
@@ -52,9 +68,21 @@ def task_section(task: Mapping[str, Any], components: Sequence[str]) -> str:
 
 
 def environment_section(task: Mapping[str, Any]) -> str:
-    """Environment information: ``task.environment`` (observation / reward code as text) if the task gives it."""
-    text = task.get("environment") or task.get("reward_code")
-    return f"Environment description:\n{str(text).strip()}" if text else ""
+    """Environment description: the source of ``task.environment_code`` (how the observation is built)."""
+    text = environment_code(task)
+    return f"Environment description (the observation the policy sees):\n```python\n{text.strip()}\n```" if text else ""
+
+
+def reward_code_section(task: Mapping[str, Any], components: Sequence[str], aux_path: str | Path | None = None) -> str:
+    """Reward code of each component, read from the implementation (``task.reward_code``) and the aux file."""
+    blocks = reward_code_blocks(task, components, aux_path)
+    if not blocks:
+        return "Reward code: computed inside the simulator; the meanings above describe each component."
+    parts = ["Reward code of each component (the code that computes it in this training run):"]
+    for names, source in blocks:
+        label = ", ".join(f"{components.index(name) + 1}. {name}" for name in names)
+        parts.append(f"Components {label}:\n```python\n{source.strip()}\n```")
+    return "\n".join(parts)
 
 
 def statistics_section(components: Sequence[str], context: Any) -> str:
@@ -92,8 +120,14 @@ def rule_selection_prompt(
     context: Any,
     base_weight: float,
     interval: int,
+    mapping_text: str | None = None,
+    aux_path: str | Path | None = None,
 ) -> list[dict[str, str]]:
-    """The "Rules' selection" prompt; the answer is one serial number ``~[N]~``."""
+    """The "Rules' selection" prompt; the answer is one serial number ``~[N]~``.
+
+    ``mapping_text`` states how scores become weights (``WeightMapping.describe()``); ``aux_path`` is
+    the auxiliary reward file whose code is shown for component ``aux``.
+    """
     previous = (
         f"{interval} training iterations ago you chose rule {context.previous_rule_id}, and its weights were used "
         "since then. Take that into account."
@@ -103,8 +137,9 @@ def rule_selection_prompt(
     content = _join(
         INTRO,
         task_section(task, components),
-        "Algorithm framework: " + FRAMEWORK.format(k=len(components), base=base_weight),
+        _framework(len(components), base_weight, mapping_text),
         environment_section(task),
+        reward_code_section(task, components, aux_path),
         "Goal: look at the mean returns, variances and weights of every component, now and in earlier periods. "
         "Think step by step about which components need attention at this stage, weigh the strengths and "
         "weaknesses of each rule below, and choose the rule that will help the next period of training most.",
@@ -118,15 +153,21 @@ def rule_selection_prompt(
 
 
 def direct_weights_prompt(
-    task: Mapping[str, Any], components: Sequence[str], context: Any, base_weight: float, interval: int
+    task: Mapping[str, Any],
+    components: Sequence[str],
+    context: Any,
+    base_weight: float,
+    interval: int,
+    aux_path: str | Path | None = None,
 ) -> list[dict[str, str]]:
     """AHRS-D: the LLM gives the K shares directly, ``~[w1, ..., wK]~`` (non-negative, normalised by us)."""
     k = len(components)
     content = _join(
         INTRO,
         task_section(task, components),
-        "Algorithm framework: " + FRAMEWORK.format(k=k, base=base_weight),
+        _framework(k, base_weight, f"w_k = {base_weight} + n_k with n_k your answer divided by its sum"),
         environment_section(task),
+        reward_code_section(task, components, aux_path),
         "Goal: look at the mean returns, variances and weights of every component, now and in earlier periods. "
         f"Think step by step and propose how much each component should count for the next {interval} training "
         "iterations.",
@@ -164,8 +205,9 @@ def rule_generation_prompt(
         "Task: you are an expert in reinforcement learning. Work out how the weights of the reward components "
         "should be adjusted during training so that the robot learns its task better.\n"
         + task_section(task, components),
-        "Algorithm framework: " + FRAMEWORK.format(k=len(components), base=0.5),
+        _framework(len(components), 0.5, None),
         environment_section(task),
+        reward_code_section(task, components),
         f"Goal: think step by step and write at least {count} useful weight rules. Each rule is a formula that "
         "turns statistics of the components' episode returns into raw scores, one per component; a higher score "
         "means more weight. Then write each rule as a Python function.",
@@ -174,8 +216,8 @@ def rule_generation_prompt(
         "- var_returns [K]: variance of those returns\n"
         "- history [L, K]: earlier mean returns, oldest first (history[-1] is the previous period)\n"
         "- previous_weights [K]: the weights in force\n"
-        "The scores are normalised afterwards (shifted so the smallest is 0 and divided by their sum), so "
-        "their scale does not matter, but they must be finite for any finite input.",
+        "The scores are mapped to weights afterwards (normalised across components), so their scale should not "
+        "matter, but they must be finite for any finite input.",
         "Here is an example rule (the one HD-PPO uses) to build on:\n```python\n" + example_source.strip() + "\n```",
         "Code requirements: one function per rule in the exact format below; only `import torch` and `import "
         "math` are allowed; no other imports, no file or network access, no loops over data-dependent ranges, "

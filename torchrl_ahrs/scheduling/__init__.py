@@ -131,7 +131,10 @@ def build_selector(
     if name in LLM_SELECTORS:
         from torchrl_ahrs.scheduling.llm_selectors import build_llm_selector
 
-        return build_llm_selector(name, cfg, repository, components, run_dir, decision_interval(cfg)), note
+        selector = build_llm_selector(
+            name, cfg, repository, components, run_dir, decision_interval(cfg), weight_mapping(cfg).describe()
+        )
+        return selector, note
     raise ValueError(f"unknown selector {name!r}; choose constant, fixed, random, bandit, llm or direct")
 
 

@@ -19,12 +19,16 @@ from omegaconf import OmegaConf
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig
 from torchrl_ahrs.llm.prompts import correction_message, direct_weights_prompt, rule_selection_prompt
+from torchrl_ahrs.llm.task_text import AUX
+from torchrl_ahrs.rewards.auxiliary import shipped_aux_path
 from torchrl_ahrs.scheduling.rules import RuleRepository
 from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
 
 
 class _LLMSelectorBase(Selector):
     expected = ""
+    mapping_text: str | None = None  # how scores become weights, for the prompt (WeightMapping.describe())
+    aux_path: Path | None = None  # the auxiliary reward file shown as component aux's code
 
     def __init__(
         self, client: LLMClient, task: Mapping[str, Any], components: list[str], base_weight: float, interval: int
@@ -101,6 +105,8 @@ class LLMRuleSelector(_LLMSelectorBase):
             context,
             self.base_weight,
             self.interval,
+            mapping_text=self.mapping_text,
+            aux_path=self.aux_path,
         )
 
     def parse(self, text: str) -> int:
@@ -126,7 +132,9 @@ class DirectWeightSelector(_LLMSelectorBase):
         self.expected = f"~[w1, ..., w{len(components)}]~ with {len(components)} non-negative numbers"
 
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
-        return direct_weights_prompt(self.task, self.components, context, self.base_weight, self.interval)
+        return direct_weights_prompt(
+            self.task, self.components, context, self.base_weight, self.interval, aux_path=self.aux_path
+        )
 
     def parse(self, text: str) -> list[float]:
         return parse_weights_answer(text, len(self.components))
@@ -145,14 +153,26 @@ def build_llm_selector(
     components: list[str],
     run_dir: Path | None,
     interval: int | None = None,
+    mapping_text: str | None = None,
 ) -> Selector:
     """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``);
-    ``interval`` is the run's decision interval in iterations (default ``cfg.scheduler.interval``)."""
+    ``interval`` is the run's decision interval in iterations (default ``cfg.scheduler.interval``);
+    ``mapping_text`` says in the prompt how rule scores become weights."""
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
     client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
     task = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
     base_weight = float(cfg.scheduler.base_weight)
     interval = int(interval if interval is not None else cfg.scheduler.interval)
+    selector: _LLMSelectorBase
     if name == "llm":
-        return LLMRuleSelector(client, repository, task, components, base_weight, interval)
-    return DirectWeightSelector(client, task, components, base_weight, interval)
+        selector = LLMRuleSelector(client, repository, task, components, base_weight, interval)
+    else:
+        selector = DirectWeightSelector(client, task, components, base_weight, interval)
+    selector.mapping_text = mapping_text
+    if AUX in components:
+        aux_file = OmegaConf.select(cfg, "aux.path")
+        try:
+            selector.aux_path = Path(aux_file) if aux_file else shipped_aux_path(str(task.get("name", "")))
+        except FileNotFoundError:
+            selector.aux_path = None  # the prompt then gives aux's meaning without its code
+    return selector
