@@ -2,6 +2,7 @@
 the three methods that use it, and the generator against a local scripted LLM server."""
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -413,3 +414,45 @@ def test_sandbox_cli_accepts_a_shipped_aux_reward_on_its_task():
         timeout=300,
     )
     assert finished.returncode == 0 and "accepted" in finished.stdout, finished.stdout + finished.stderr
+
+
+SMALLER_ANSWER = GOOD_ANSWER.replace("0.1 * (", "0.01 * (")
+
+
+def test_generator_trains_candidates_feeds_statistics_back_and_keeps_every_candidate(
+    llm_server, loopback_only, tmp_path, monkeypatch
+):
+    from torchrl_ahrs.generate_aux import generate
+    from torchrl_ahrs.reporting.runs import read_scalar as read_csv
+    from torchrl_ahrs.reporting.stats import final_return
+
+    monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
+    llm_server.script = [("ok", GOOD_ANSWER), ("ok", HOSTILE_ANSWER), ("ok", SMALLER_ANSWER)]
+    cfg = OmegaConf.merge(
+        _generator_cfg(llm_server, attempts=3),
+        make_cfg(*FAST, "method=ahrs", "aux.generate.train_rounds=2", "aux.generate.train_frames=2048"),
+        {"llm": _generator_cfg(llm_server).llm},
+    )
+    result = generate(cfg, tmp_path)
+    second = llm_server.requests[1]["body"]["messages"]
+    feedback = second[-1]["content"]
+    assert second[-2]["content"] == GOOD_ANSWER and "I trained an agent" in feedback
+    for name in ["distance", "arrival", "ctrl", "aux", "total (the task's own reward)"]:
+        assert f"- {name}: " in feedback, name  # every component's statistics go back
+    index = json.loads((tmp_path / "candidates.json").read_text())
+    attempts = {c["attempt"]: c for c in index["candidates"]}
+    assert (
+        sorted(attempts) == [1, 2, 3] and attempts[2]["path"] is None and "import of 'os'" in attempts[2]["reasons"][0]
+    )
+    finals = {}
+    for attempt in (1, 3):  # oracle: the final return/total read from each round's own metrics
+        steps, values = read_csv(
+            tmp_path / "candidates" / f"attempt_{attempt}" / "run" / "metrics" / "scalars" / "return" / "total.csv"
+        )
+        finals[attempt] = final_return(steps, values, 2048, 0.25)
+        assert attempts[attempt]["scores"]["final return/total"] == pytest.approx(finals[attempt])
+        assert (tmp_path / "candidates" / f"attempt_{attempt}" / "aux_reward.py").is_file()
+    best = max(finals, key=finals.get)
+    assert index["chosen_attempt"] == best == result.chosen_attempt
+    chosen_code = (tmp_path / "candidates" / f"attempt_{best}" / "aux_reward.py").read_text()
+    assert result.path == tmp_path / "aux_reward.py" and result.path.read_text() == chosen_code

@@ -4,18 +4,27 @@ Asks the LLM with the "Add Auxiliary reward" prompt (task description, the task'
 component, the inputs measured on real transitions, the output requirements), extracts the code block,
 checks it with the sandbox (static allow-list, then the limited child process calling it on real
 transitions of the task: finite, shape [N]) and, when it is refused, sends the reasons back and asks
-again, up to ``aux.generate.attempts`` answers. The accepted function is written with provenance
-(model, date, prompt hash, attempts) to ``aux_reward.py``, which ``aux.path=<file>`` uses for training.
+again, up to ``aux.generate.attempts`` answers. Every accepted function is written with provenance
+(model, date, prompt hash, attempt) to ``candidates/attempt_<i>/aux_reward.py``.
 
-Output: ``+output=<dir>`` (default ``outputs/aux/<task>-<model>-<time>/``) receives ``aux_reward.py`` and
-``llm_calls.jsonl``. Exit status 0 when a function was accepted, 1 otherwise.
+With ``aux.generate.train_rounds=R > 0`` (the paper's "I will use the reward function to train an RL
+agent and test it"), each accepted candidate is trained for ``aux.generate.train_frames`` frames with
+the composed method (default ``ahrs``; any method with an auxiliary branch), each component's episode
+returns, weights and effective shares are sent back to the LLM, and it writes the next candidate, until
+R candidates have been trained or the attempts run out. The candidate with the highest final
+``return/total`` is chosen (see :mod:`torchrl_ahrs.app.aux_rounds`). With R = 0 the first accepted
+candidate is chosen.
+
+Output: ``+output=<dir>`` (default ``outputs/aux/<task>-<model>-<time>/``) receives the chosen
+``aux_reward.py`` (use ``aux.path=<file>``), ``candidates/`` (every answer, its code, its training
+round), ``candidates.json`` (reasons or scores of every attempt and the chosen one) and
+``llm_calls.jsonl``. Exit status 0 when a function was chosen, 1 otherwise.
 """
 
 from __future__ import annotations
 
 import datetime
-import importlib
-import inspect
+import shutil
 import sys
 import tempfile
 from dataclasses import dataclass, field
@@ -25,54 +34,22 @@ from typing import Any
 import torch
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.app.aux_rounds import Candidate, choose, scores_text, train_round, write_index
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
 from torchrl_ahrs.generate_rules import extract_code_blocks
-from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
+from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt, training_feedback_message
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
 from torchrl_ahrs.llm.generation import generation_output_dir
+from torchrl_ahrs.llm.task_text import environment_code, reward_code_blocks
 from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, load_aux_function
 from torchrl_ahrs.sandbox import check_source, validate_in_child
 
-# The Python that computes each task's reward terms ("module:qualified name"); tasks whose terms come
-# from EnvPool's C++ have none and the prompt says so.
-REWARD_SOURCES: dict[str, list[str]] = {
-    "point_reach": ["torchrl_ahrs.envs.tasks.point_reach:PointReachEnv.reward_terms"],
-    "quadcopter": ["torchrl_ahrs.envs.tasks.quadcopter:quadcopter_reward_terms"],
-    "ant": ["torchrl_ahrs.envs.tasks.ant:ant_reward_terms"],
-    "cassie": [
-        "torchrl_ahrs.envs.common.legged_rewards",
-        "torchrl_ahrs.envs.tasks.cassie:CassieEnv.after_physics_step",
-    ],
-    "shadow_hand": ["torchrl_ahrs.envs.tasks.shadow_hand:shadow_hand_terms"],
-    "dmc_walker_walk": ["torchrl_ahrs.envs.tasks.dmc_tasks:walker_walk_terms"],
-    "dmc_quadruped_run": ["torchrl_ahrs.envs.tasks.dmc_tasks:quadruped_run_terms"],
-    "dmc_cheetah_run": ["torchrl_ahrs.envs.tasks.dmc_tasks:cheetah_run_terms"],
-}
-OBSERVATION_SOURCES: dict[str, str] = {
-    "point_reach": "torchrl_ahrs.envs.tasks.point_reach:PointReachEnv.observation",
-    "quadcopter": "torchrl_ahrs.envs.tasks.quadcopter:QuadcopterEnv.observation",
-    "ant": "torchrl_ahrs.envs.tasks.ant:AntEnv.observation",
-    "cassie": "torchrl_ahrs.envs.tasks.cassie:CassieEnv.observation",
-}
 
-
-def source_of(reference: str) -> str | None:
-    """``inspect.getsource`` of ``"module"`` or ``"module:qualified.name"``; None when it does not exist."""
-    module_name, _, qualname = reference.partition(":")
-    try:
-        target: Any = importlib.import_module(module_name)
-        for part in filter(None, qualname.split(".")):
-            target = getattr(target, part)
-        return inspect.getsource(target)
-    except (ImportError, AttributeError, OSError, TypeError):
-        return None
-
-
-def reward_code(task_name: str) -> str | None:
-    """The Python source of the task's reward terms, or None (computed inside the simulator)."""
-    parts = [source_of(reference) for reference in REWARD_SOURCES.get(task_name, [])]
-    parts = [part for part in parts if part]
-    return "\n\n".join(parts) if parts else None
+def reward_code(task: dict[str, Any]) -> str | None:
+    """The Python source of the task's reward terms (``task.reward_code``, read with ``inspect.getsource``),
+    or None when they are computed inside the simulator."""
+    blocks = reward_code_blocks(task, list(task["components"]))
+    return "\n\n".join(source for _, source in blocks) if blocks else None
 
 
 def extract_aux_source(text: str) -> str:
@@ -112,6 +89,7 @@ class AuxGenerationResult:
     path: Path | None = None
     refusals: list[list[str]] = field(default_factory=list)
     attempts: int = 0
+    chosen_attempt: int | None = None
 
 
 def _setting(cfg: Any, key: str, default: Any) -> Any:
@@ -133,17 +111,19 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
         int(_setting(cfg, "aux.generate.steps", 32)),
         int(_setting(cfg, "seed", 0)),
     )
-    observation_ref = OBSERVATION_SOURCES.get(task["name"])
     messages = aux_reward_prompt(
         task,
         components,
-        reward_code(task["name"]),
+        reward_code(task),
         {name: tuple(value.shape) for name, value in inputs.items()},
-        source_of(observation_ref) if observation_ref else None,
+        environment_code(task),
     )
+    rounds = int(_setting(cfg, "aux.generate.train_rounds", 0))
+    frames = int(_setting(cfg, "aux.generate.train_frames", 40_960))
     first_prompt_hash = prompt_hash(messages)
     client = LLMClient(llm_cfg, run_dir=output_dir)
     result = AuxGenerationResult()
+    candidates: list[Candidate] = []
     with tempfile.TemporaryDirectory() as scratch:
         inputs_path = Path(scratch) / "inputs.pt"
         torch.save(inputs, inputs_path)
@@ -153,18 +133,44 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
             if reply.text is None:
                 result.refusals.append([f"the LLM call failed: {reply.error}"])
                 break  # the client already retried the transport; another prompt would not help
+            candidate_dir = output_dir / "candidates" / f"attempt_{attempt}"
+            candidate_dir.mkdir(parents=True, exist_ok=True)
+            (candidate_dir / "answer.md").write_text(reply.text)
             try:
                 source = extract_aux_source(reply.text)
                 reasons = check_candidate(source, inputs_path)
             except ValueError as error:
                 reasons = [str(error)]
-            if not reasons:
-                result.path = _write(output_dir, source, task["name"], llm_cfg.model, first_prompt_hash, attempt)
-                load_aux_function(result.path)  # the file as written must load
-                return result
-            result.refusals.append(reasons)
-            messages = [*messages, {"role": "assistant", "content": reply.text}, aux_feedback_message(reasons)]
+            candidate = Candidate(attempt, reasons=reasons)
+            candidates.append(candidate)
+            if reasons:
+                result.refusals.append(reasons)
+                messages = [*messages, {"role": "assistant", "content": reply.text}, aux_feedback_message(reasons)]
+                continue
+            path = _write(candidate_dir, source, task["name"], llm_cfg.model, first_prompt_hash, attempt)
+            load_aux_function(path)  # the file as written must load
+            candidate.path = str(path)
+            if rounds == 0:
+                break  # no training feedback: the first accepted candidate is the answer
+            candidate.scores = train_round(cfg, path, candidate_dir / "run", frames)
+            write_index(output_dir, candidates, choose(candidates), {"train_frames": frames})
+            if sum(1 for c in candidates if c.scores) >= rounds:
+                break
+            feedback = training_feedback_message(scores_text(candidate.scores, _round_components(cfg), frames))
+            messages = [*messages, {"role": "assistant", "content": reply.text}, feedback]
+    chosen = choose(candidates)
+    write_index(output_dir, candidates, chosen, {"train_frames": frames if rounds else 0})
+    if chosen is not None:
+        result.path = output_dir / "aux_reward.py"
+        shutil.copyfile(chosen.path, result.path)
+        result.chosen_attempt = chosen.attempt
     return result
+
+
+def _round_components(cfg: Any) -> list[str]:
+    from torchrl_ahrs.app.config import resolve_components
+
+    return resolve_components(cfg)
 
 
 def _write(output_dir: Path, source: str, task_name: str, model: str | None, digest: str, attempt: int) -> Path:
@@ -175,7 +181,7 @@ def _write(output_dir: Path, source: str, task_name: str, model: str | None, dig
         f"use: python -m torchrl_ahrs.train task={task_name} method=ahrs aux.path=<this file>\n"
         '"""\n\n'
     )
-    path = output_dir / "aux_reward.py"
+    path = output_dir / "aux_reward.py"  # the candidate's own directory; the chosen one is copied up
     path.write_text(header + source.strip() + "\n")
     return path
 
@@ -186,7 +192,7 @@ def _report(result: AuxGenerationResult) -> None:
         for reason in reasons:
             print(f"  - {reason}")
     if result.path is not None:
-        print(f"accepted at attempt {result.attempts}: {result.path} (use aux.path={result.path})")
+        print(f"chose attempt {result.chosen_attempt} of {result.attempts}: {result.path} (use aux.path={result.path})")
     else:
         print(f"no auxiliary reward accepted after {result.attempts} attempt(s)")
 

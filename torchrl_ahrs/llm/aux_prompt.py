@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from torchrl_ahrs.llm.prompts import SEPARATOR
+from torchrl_ahrs.llm.task_text import component_meanings
 
 AUX_FORMAT = """import torch
 
@@ -26,10 +27,8 @@ def compute_aux_reward(obs):
 
 def components_section(task: Mapping[str, Any], components: Sequence[str]) -> str:
     """One line per reward component, with ``task.component_descriptions`` when the task gives them."""
-    descriptions = task.get("component_descriptions") or {}
     lines = [f"Explanation of each reward component ({len(components)} in total, summed into the reward):"]
-    for index, name in enumerate(components, start=1):
-        meaning = descriptions.get(name) if hasattr(descriptions, "get") else None
+    for index, (name, meaning) in enumerate(component_meanings(task, components).items(), start=1):
         lines.append(f"{index}. {name}" + (f": {meaning}" if meaning else " (see the reward code above)"))
     return "\n".join(lines)
 
@@ -105,11 +104,31 @@ def aux_reward_prompt(
             + AUX_FORMAT
             + "\n```",
             SEPARATOR,
-            "I will check the function in a sandbox and run it on real transitions of the task. If it fails, I will "
-            "tell you why, and you should correct it.",
+            "I will check the function in a sandbox and run it on real transitions of the task, then use the reward "
+            "function to train an RL agent and test it in the environment. I will tell you why it failed, or how "
+            "training went (each component's episode returns), and you should modify the reward function "
+            "accordingly.",
         ]
     )
     return [{"role": "user", "content": content}]
+
+
+def training_feedback_message(round_text: str) -> dict[str, str]:
+    """After a short training round with the candidate: each component's statistics, then a request for a
+    better function (the paper's "I will use the reward function to train an RL agent and test it").
+
+    Example:
+        >>> training_feedback_message("return/total: 12.5")["content"].splitlines()[0]
+        'I trained an agent with your auxiliary reward added as one more component. Results:'
+    """
+    return {
+        "role": "user",
+        "content": "I trained an agent with your auxiliary reward added as one more component. Results:\n"
+        + round_text.strip()
+        + "\nThe goal is a higher return/total (the task's own reward, without the auxiliary term) reached "
+        "sooner. Analyse which components lag and why, then reply with an improved complete function "
+        "`compute_aux_reward(obs)` in one ```python code block and nothing else.",
+    }
 
 
 def aux_feedback_message(reasons: Sequence[str]) -> dict[str, str]:
