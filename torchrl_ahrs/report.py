@@ -38,6 +38,7 @@ from torchrl_ahrs.reporting.tables import (
     paper_table,
     rule_rows,
     run_rows,
+    share_rows,
     summary_rows,
 )
 
@@ -68,6 +69,7 @@ def write_report(sweep_dir: Path | list[Path], out_dir: Path, title: str | None 
         "components": component_rows(runs),
         "rules": rule_rows(runs),
         "llm": llm_rows(runs),
+        "shares": share_rows(runs),
     }
     for name, rows in tables.items():
         write_csv(rows, out_dir / f"{name}.csv")
@@ -79,12 +81,13 @@ def write_report(sweep_dir: Path | list[Path], out_dir: Path, title: str | None 
 
 def draw_figures(runs: list[Run], out_dir: Path) -> dict[str, list[Path]]:
     """All PNGs, grouped by kind."""
-    images: dict[str, list[Path]] = {"curves": [], "weights": [], "components": []}
+    images: dict[str, list[Path]] = {"curves": [], "weights": [], "shares": [], "components": []}
     for task in sorted({run.task for run in runs}):
         task_runs = [run for run in runs if run.task == task]
         for kind, draw in (
             ("curves", figures.learning_curves),
             ("weights", figures.weight_timelines),
+            ("shares", figures.share_timelines),
             ("components", figures.component_returns),
         ):
             path = draw(task, task_runs, out_dir / f"{kind}_{task}.png")
@@ -128,6 +131,15 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
                 "change_vs_ppo_pct",
             ],
         ),
+        "\n## Early-learning speed\n",
+        "AUC: the area under a run's `return/total` curve divided by the frames it spans (its average return "
+        "over training; higher = learnt sooner and/or better), mean ± std over seeds. Frames to 90 %: first frame "
+        "at which the running mean of 5 rows reaches r0 + 0.9 (P - r0), with r0 the task's mean first logged "
+        "return (random-policy level) and P PPO's mean final return; averaged over the seeds that reached it.\n",
+        markdown_table(
+            tables["summary"],
+            ["task", "method", "auc_mean", "auc_std", "frames_to_90pct_ppo", "reached_90pct_ppo"],
+        ),
         "\n## Runs not ok (missing, incomplete, too few metric rows)\n",
         markdown_table(not_ok, ["task", "method", "seed", "status", "reason", "path"]) if not_ok else "None.\n",
         "\n## Learning curves\n",
@@ -139,6 +151,12 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
         "\n## Weight and rule timelines of scheduled runs\n",
         markdown_table(tables["rules"], ["task", "method", "rule", "decisions", "selector"]),
         *[f"![{p.stem}]({p.name})\n" for p in images["weights"]],
+        "\n## Effective shares of scheduled runs\n",
+        "share_k = w_k std(A_k) / sum_j w_j std(A_j), with A_k as mixed (after `ppo.component_scale`), logged every "
+        "iteration. Movement: mean over seeds of the range of a component's per-period mean share (periods between "
+        "decisions); seed noise: mean over frames of the share's std across seeds.\n",
+        markdown_table(tables["shares"]) if tables["shares"] else "No run logged shares.\n",
+        *[f"![{p.stem}]({p.name})\n" for p in images["shares"]],
         "\n## LLM calls\n",
         markdown_table(tables["llm"])
         if tables["llm"]

@@ -46,10 +46,11 @@ def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "retur
     return path
 
 
-def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
+def weight_timelines(task: str, runs: list[Run], path: Path, kind: str = "weight") -> Path | None:
     """For each scheduled method (one with ``weight/<c>`` curves and scheduler decisions): the weight of
     every component against frames (mean over seeds, band = std), and below it the rule each seed's
-    scheduler applied at each decision (one marker per decision, seeds offset vertically)."""
+    scheduler applied at each decision (one marker per decision, seeds offset vertically). With
+    ``kind="share"``: the effective shares ``share/<c>`` instead of the weights."""
     scheduled = {m: g for m, g in _by_method([r for r in runs if r.scheduled]).items()}
     if not scheduled:
         return None
@@ -58,15 +59,16 @@ def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
     )
     for column, (method, group) in enumerate(scheduled.items()):
         weight_axis, rule_axis = axes[0, column], axes[1, column]
-        logged = [name for name in group[0].curves if name.startswith("weight/")]
-        ordered = [f"weight/{c}" for c in group[0].components]  # the task's K-axis order first
+        logged = [name for name in group[0].curves if name.startswith(f"{kind}/")]
+        ordered = [f"{kind}/{c}" for c in group[0].components]  # the task's K-axis order first
         components = [n for n in ordered if n in logged] + [n for n in logged if n not in ordered]
         for name in components:
             grid, mean, std = mean_band([run.curves[name] for run in group if name in run.curves])
             if grid.size:
                 line = weight_axis.plot(grid, mean, label=name.split("/", 1)[1])[0]
                 weight_axis.fill_between(grid, mean - std, mean + std, color=line.get_color(), alpha=0.15)
-        weight_axis.set(title=f"{task} / {method}: weights", ylabel="w_k")
+        label = "w_k" if kind == "weight" else "w_k std(A_k) / sum_j w_j std(A_j)"
+        weight_axis.set(title=f"{task} / {method}: {kind}s", ylabel=label)
         weight_axis.grid(alpha=0.3)
         if weight_axis.get_legend_handles_labels()[0]:
             weight_axis.legend(fontsize="x-small")
@@ -83,6 +85,13 @@ def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
     figure.savefig(path, dpi=80)
     plt.close(figure)
     return path
+
+
+def share_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
+    """:func:`weight_timelines` of the effective shares ``share/<c>`` (None when no run logs them)."""
+    if not any(name.startswith("share/") for run in runs for name in run.curves):
+        return None
+    return weight_timelines(task, runs, path, kind="share")
 
 
 def component_returns(task: str, runs: list[Run], path: Path) -> Path | None:

@@ -40,7 +40,7 @@ METHOD_ORDER = ("ppo", "hdppo", "ahrs_wo_a", "ahrs", "ahrs_r", "ahrs_d", "ppo_a"
 class Run:
     """One run directory of a sweep and what the report needs from it.
 
-    ``curves`` maps a scalar name (``return/total``, ``return/<c>``, ``weight/<c>``) to (steps [R], values
+    ``curves`` maps a scalar name (``return/total``, ``return/<c>``, ``weight/<c>``, ``share/<c>``) to (steps [R], values
     [R]); ``final`` maps ``return/total`` and ``return/<c>`` to the final return (NaN when unavailable).
 
     Example:
@@ -126,7 +126,7 @@ def load_run(path: Path) -> Run:
         llm_name=str((config.get("llm", {}) or {}).get("name", "offline")),
     )
     scalars = path / SCALARS_DIR
-    for group in ("return", "weight"):
+    for group in ("return", "weight", "share"):
         for csv_path in sorted((scalars / group).glob("*.csv")):
             run.curves[f"{group}/{csv_path.stem}"] = read_scalar(csv_path)
     logged = [name.split("/", 1)[1] for name in run.curves if name.startswith("return/")]

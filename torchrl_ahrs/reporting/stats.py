@@ -145,3 +145,68 @@ def mean_band(curves: Sequence[tuple[np.ndarray, np.ndarray]], points: int = 100
     grid = np.linspace(start, stop, points if stop > start else 1)
     stacked = np.stack([np.interp(grid, s, v) for s, v in curves])  # [S, P]
     return grid, stacked.mean(axis=0), stacked.std(axis=0)  # population std over seeds (band only)
+
+
+def normalised_auc(steps: np.ndarray, values: np.ndarray) -> float:
+    """Area under a learning curve divided by the frames it spans: the run's average return over
+    training (trapezoids between logged rows; higher = learnt sooner and/or better). NaN without rows.
+
+    Example:
+        >>> normalised_auc(np.array([0.0, 10.0]), np.array([0.0, 2.0]))
+        1.0
+    """
+    steps, values = np.asarray(steps, float), np.asarray(values, float)
+    if steps.size == 0:
+        return math.nan
+    if steps.size == 1:
+        return float(values[0])
+    area = float(np.sum(np.diff(steps) * (values[1:] + values[:-1]) / 2.0))  # sum_i (s_i+1 - s_i)(v_i + v_i+1)/2
+    return area / float(steps[-1] - steps[0])  # AUC / span
+
+
+def frames_to_threshold(steps: np.ndarray, values: np.ndarray, threshold: float, smooth: int = 5) -> float:
+    """First frame at which the running mean of the last ``smooth`` rows reaches ``threshold``; NaN if never.
+
+    Example:
+        >>> frames_to_threshold(np.array([1, 2, 3, 4]), np.array([0.0, 5.0, 9.0, 9.0]), 8.0, smooth=1)
+        3.0
+    """
+    steps, values = np.asarray(steps, float), np.asarray(values, float)
+    for index in range(values.size):
+        window = values[max(0, index - smooth + 1) : index + 1]
+        if window.mean() >= threshold:  # (1/w) sum of the last w rows >= threshold
+            return float(steps[index])
+    return math.nan
+
+
+def movement_and_noise(runs_shares: Sequence[tuple[np.ndarray, np.ndarray, Sequence[float]]]) -> tuple[float, float]:
+    """How far a component's share moves between decisions, against its seed-to-seed noise.
+
+    Args:
+        runs_shares: one entry per seed: (steps [R], shares [R], decision frames).
+
+    Returns:
+        (movement, noise): movement = mean over seeds of (max - min) of the per-period mean share
+        (periods = the intervals between decisions); noise = mean over a common grid of the std of the
+        share across seeds. NaN when undefined.
+
+    Example:
+        >>> steps = np.arange(1.0, 9.0)
+        >>> a = (steps, np.array([0.1] * 4 + [0.5] * 4), [4.0])
+        >>> b = (steps, np.array([0.1] * 4 + [0.5] * 4), [4.0])
+        >>> movement_and_noise([a, b])
+        (0.4, 0.0)
+    """
+    movements = []
+    for steps, shares, decisions in runs_shares:
+        edges = [-math.inf, *sorted(decisions), math.inf]
+        means = [shares[(steps > lo) & (steps <= hi)].mean() for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+                 if ((steps > lo) & (steps <= hi)).any()]  # fmt: skip
+        if len(means) > 1:
+            movements.append(max(means) - min(means))  # range of period means
+    movement = float(np.mean(movements)) if movements else math.nan
+    if len(runs_shares) < 2:
+        return round(movement, 12), math.nan
+    _, _, std = mean_band([(steps, shares) for steps, shares, _ in runs_shares])
+    noise = float(std.mean()) if std.size else math.nan  # mean over the grid of std over seeds
+    return round(movement, 12), round(noise, 12)

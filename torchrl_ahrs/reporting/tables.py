@@ -9,7 +9,17 @@ from typing import Any
 import numpy as np
 
 from torchrl_ahrs.reporting.runs import Run, method_rank
-from torchrl_ahrs.reporting.stats import bootstrap_ci, change_percent, interquartile_mean, mean_std
+from torchrl_ahrs.reporting.stats import (
+    bootstrap_ci,
+    change_percent,
+    frames_to_threshold,
+    interquartile_mean,
+    mean_std,
+    movement_and_noise,
+    normalised_auc,
+)
+
+SPEED_FRACTION = 0.9  # "frames to 90 % of PPO's plateau"
 
 BASELINE = "ppo"
 
@@ -48,6 +58,60 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
     baselines = {row["task"]: row["mean"] for row in rows if row["method"] == BASELINE}
     for row in rows:
         row["change_vs_ppo_pct"] = change_percent(row["mean"], baselines.get(row["task"], math.nan))
+    _add_speed(rows, runs, baselines)
+    return rows
+
+
+def speed_threshold(runs: list[Run], task: str, plateau: float) -> float:
+    """``r0 + 0.9 (P - r0)``: r0 = mean first logged ``return/total`` of the task's finished runs (the
+    random-policy level), P = PPO's mean final return on the task (its plateau)."""
+    firsts = [r.curves["return/total"][1][0] for r in runs if r.ok and r.task == task and "return/total" in r.curves]
+    if not firsts or not math.isfinite(plateau):
+        return math.nan
+    start = float(np.mean(firsts))
+    return start + SPEED_FRACTION * (plateau - start)  # r0 + 0.9 (P - r0)
+
+
+def _add_speed(rows: list[dict[str, Any]], runs: list[Run], baselines: dict[str, float]) -> None:
+    """Early-learning speed per (task, method): normalised AUC (mean ± std over seeds) and frames to
+    90 % of PPO's plateau (mean over the seeds that reached it, and how many did)."""
+    for row in rows:
+        group = [r for r in runs if r.ok and r.task == row["task"] and r.method == row["method"]]
+        curves = [r.curves["return/total"] for r in group if "return/total" in r.curves]
+        aucs = [normalised_auc(steps, values) for steps, values in curves]
+        row["auc_mean"], row["auc_std"] = mean_std(aucs)
+        threshold = speed_threshold(runs, row["task"], baselines.get(row["task"], math.nan))
+        reached = [f for f in (frames_to_threshold(s, v, threshold) for s, v in curves) if math.isfinite(f)]
+        row["frames_to_90pct_ppo"] = float(np.mean(reached)) if reached else math.nan
+        row["reached_90pct_ppo"] = f"{len(reached)}/{len(curves)}"
+
+
+def share_rows(runs: list[Run]) -> list[dict[str, Any]]:
+    """Per scheduled (task, method, component): the effective share's movement between decisions
+    against its seed-to-seed noise (see :func:`~torchrl_ahrs.reporting.stats.movement_and_noise`)."""
+    rows = []
+    for (task, method), group in cells([r for r in runs if r.ok and r.scheduled]).items():
+        components = [name.split("/", 1)[1] for name in group[0].curves if name.startswith("share/")]
+        for component in components:
+            entries = [
+                (*r.curves[f"share/{component}"], [d["frames"] for d in r.decisions if d.get("applied")])
+                for r in group
+                if f"share/{component}" in r.curves
+            ]
+            movement, noise = movement_and_noise(entries)
+            final = [float(np.mean(values[-max(1, len(values) // 10) :])) for _, values, _ in entries]
+            rows.append(
+                {
+                    "task": task,
+                    "method": method,
+                    "component": component,
+                    "final_share": float(np.mean(final)) if final else math.nan,
+                    "movement": movement,
+                    "seed_noise": noise,
+                    "moves_beyond_noise": bool(movement > noise) if math.isfinite(noise) else "",
+                    "decisions_per_run": float(np.mean([len(e[2]) for e in entries])) if entries else 0.0,
+                }
+            )
     return rows
 
 
