@@ -33,7 +33,7 @@ DECISIONS_FILE = "scheduler_decisions.jsonl"
 LLM_CALLS_FILE = "llm_calls.jsonl"
 SCALARS_DIR = Path("metrics") / "scalars"
 # the paper's column order; other methods follow alphabetically
-METHOD_ORDER = ("ppo", "hdppo", "ahrs_wo_a", "ahrs", "ahrs_r", "ahrs_d", "ppo_a", "hdppo_a")
+METHOD_ORDER = ("ppo", "hdppo", "ahrs_wo_a", "ahrs", "ahrs_r", "ahrs_d", "ppo_a", "hdppo_a", "mcppo")
 
 
 @dataclass
