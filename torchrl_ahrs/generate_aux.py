@@ -162,7 +162,7 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
     write_index(output_dir, candidates, chosen, {"train_frames": frames if rounds else 0})
     if chosen is not None:
         result.path = output_dir / "aux_reward.py"
-        shutil.copyfile(chosen.path, result.path)
+        shutil.copyfile(str(chosen.path), result.path)
         result.chosen_attempt = chosen.attempt
     return result
 

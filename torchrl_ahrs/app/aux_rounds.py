@@ -49,6 +49,7 @@ def round_config(cfg: DictConfig, aux_path: Path, frames: int) -> DictConfig:
     during the round (``llm=offline``: the bandit stands in for rule selection, so the generator's
     model is asked only for reward functions)."""
     round_cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    assert isinstance(round_cfg, DictConfig)
     round_cfg.aux.path = str(aux_path)
     round_cfg.trainer.total_frames = int(frames)
     round_cfg.trainer.progress_bar = False

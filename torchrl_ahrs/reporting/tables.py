@@ -72,7 +72,7 @@ def speed_threshold(runs: list[Run], task: str, plateau: float) -> float:
     return start + SPEED_FRACTION * (plateau - start)  # r0 + 0.9 (P - r0)
 
 
-def _add_speed(rows: list[dict[str, Any]], runs: list[Run], baselines: dict[str, float]) -> None:
+def _add_speed(rows: list[dict[str, Any]], runs: list[Run], baselines: dict[Any, Any]) -> None:
     """Early-learning speed per (task, method): normalised AUC (mean ± std over seeds) and frames to
     90 % of PPO's plateau (mean over the seeds that reached it, and how many did)."""
     for row in rows:

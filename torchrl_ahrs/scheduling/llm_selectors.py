@@ -172,7 +172,9 @@ def build_llm_selector(
     if AUX in components:
         aux_file = OmegaConf.select(cfg, "aux.path")
         try:
-            selector.aux_path = Path(aux_file) if aux_file else shipped_aux_path(str(task.get("name", "")))
+            selector.aux_path = (
+                Path(aux_file) if aux_file else shipped_aux_path(str(OmegaConf.select(cfg, "task.name") or ""))
+            )
         except FileNotFoundError:
             selector.aux_path = None  # the prompt then gives aux's meaning without its code
     return selector
