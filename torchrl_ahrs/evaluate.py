@@ -71,7 +71,7 @@ def evaluate(
         "components": policy.components,
         "deterministic": deterministic,
         "seed": seed,
-        **summarize(results, episode_metrics(results.returns)),
+        **summarize(results, episode_metrics(results.returns, results.metrics)),
     }
     if output:
         (Path(run_dir) / output).write_text(json.dumps(summary, indent=2) + "\n")

@@ -26,6 +26,8 @@ _BUILDERS: dict[str, str] = {
     "leap_cube": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
     "humanoid": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
     "shadow_hand": "torchrl_ahrs.envs.tasks.shadow_hand:make_shadow_hand",
+    "shadow_hand_scissors": "torchrl_ahrs.envs.tasks.shadow_hand_scissors:make_shadow_hand_scissors",
+    "shadow_hand_bottle_cap": "torchrl_ahrs.envs.tasks.shadow_hand_bottle_cap:make_shadow_hand_bottle_cap",
     "dmc_walker_walk": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
     "dmc_quadruped_run": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
     "dmc_cheetah_run": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
