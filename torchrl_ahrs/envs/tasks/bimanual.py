@@ -145,7 +145,7 @@ HAND_KEYS = ("base_range", "base_rot_range", "base_kp", "base_rot_kp")
 
 
 def bimanual_kwargs(task_cfg: Mapping[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
-    """Constructor keywords: the entries of ``task_cfg`` among ``keys`` (plus the hand's) that are set in the task config."""
+    """Constructor keywords: the entries of ``task_cfg`` among ``keys`` (plus the env's and the hand's) that are set."""
     return {k: task_cfg[k] for k in (*ENV_KEYS, *HAND_KEYS, *keys) if task_cfg.get(k) is not None}
 
 
@@ -165,6 +165,12 @@ class BimanualShadowEnv(BatchedMujocoEnv):
     A subclass sets ``scene_file`` (under ``assets/``), ``hand_poses`` (see :func:`bimanual_model`) and
     ``object_sites``, and implements ``object_observation`` [N, D], ``reward_terms`` and ``total_reward``.
     Actions are [N, 52] in [-1, 1]; observations [N, 190 + D].
+
+    Example:
+        >>> from torchrl_ahrs.envs.tasks.shadow_hand_scissors import ShadowHandScissorsEnv
+        >>> env = ShadowHandScissorsEnv(num_envs=2, num_threads=1)
+        >>> env.tips(0).shape, env.grasp_point(1).shape, env.hand_observation(0).shape
+        (torch.Size([2, 5, 3]), torch.Size([2, 3]), torch.Size([2, 95]))
     """
 
     scene_file: str = ""
