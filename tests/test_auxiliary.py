@@ -360,7 +360,7 @@ def _generator_cfg(server, attempts=3):
 
 @pytest.mark.slow
 def test_generator_feeds_refusals_back_and_saves_with_provenance(llm_server, loopback_only, tmp_path, monkeypatch):
-    from torchrl_ahrs.generate_aux import generate
+    from torchrl_ahrs.app.generate_aux import generate
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
     llm_server.script = [("ok", HOSTILE_ANSWER), ("ok", NAN_ANSWER), ("ok", GOOD_ANSWER)]
@@ -378,7 +378,7 @@ def test_generator_feeds_refusals_back_and_saves_with_provenance(llm_server, loo
 
 
 def test_generator_gives_up_after_the_configured_attempts(llm_server, loopback_only, tmp_path, monkeypatch):
-    from torchrl_ahrs.generate_aux import generate
+    from torchrl_ahrs.app.generate_aux import generate
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
     llm_server.script = [("ok", HOSTILE_ANSWER)]

@@ -14,7 +14,7 @@ import yaml
 from hydra import compose, initialize_config_module
 from hydra.utils import get_class
 
-from torchrl_ahrs.report import write_report
+from torchrl_ahrs.app.report import write_report
 from torchrl_ahrs.reporting.stats import bootstrap_ci, change_percent, final_return, interquartile_mean
 
 BUDGET = 1000
