@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
@@ -40,11 +40,6 @@ FAST = [
     "scheduler.interval=1",
     "model.hidden_sizes=[32,32]",
 ]
-
-
-def make_cfg(*overrides):
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
 
 
 def task_dict(name, **extra):
