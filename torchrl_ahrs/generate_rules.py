@@ -7,8 +7,8 @@ turns a missing or failing LLM into one line on stderr. Exit status 0 when at le
 from __future__ import annotations
 
 from torchrl_ahrs.app.cli import hydra_command
-from torchrl_ahrs.app.errors import GenerationError
 from torchrl_ahrs.app.generate_rules import generate, run
+from torchrl_ahrs.llm.generation import GenerationError
 
 __all__ = ["generate", "main"]
 

@@ -3,7 +3,3 @@
 
 class ConfigError(ValueError):
     """A config value that cannot work; the message names the field and the accepted values."""
-
-
-class GenerationError(RuntimeError):
-    """A generator command (rules, auxiliary reward) that cannot ask its LLM; the message says why."""

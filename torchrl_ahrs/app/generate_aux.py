@@ -19,18 +19,16 @@ import inspect
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
-from torchrl_ahrs.app.errors import GenerationError
-from torchrl_ahrs.app.generate_rules import extract_code_blocks
 from torchrl_ahrs.common.config_access import select
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
-from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
-from torchrl_ahrs.llm.generation import generation_output_dir
+from torchrl_ahrs.llm.client import LLMClient, prompt_hash
+from torchrl_ahrs.llm.generation import extract_code_blocks, generation_output_dir, llm_and_task
 from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, load_aux_function
 from torchrl_ahrs.sandbox import check_source, validate_in_child
 
@@ -116,10 +114,7 @@ class AuxGenerationResult:
 
 def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
     """Runs the whole generation for a composed config (``cfg.task``, ``cfg.llm``, ``cfg.aux.generate``)."""
-    llm_cfg = LLMConfig.from_cfg(OmegaConf.to_container(cfg.llm, resolve=True))
-    if not llm_cfg.model and not llm_cfg.replay_from:
-        raise GenerationError("generate_aux needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)")
-    task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
+    llm_cfg, task = llm_and_task(cfg, "generate_aux")
     components = list(task["components"])
     attempts = int(select(cfg, "aux.generate.attempts", 3))
     inputs = collect_aux_inputs(

@@ -14,22 +14,19 @@ from __future__ import annotations
 
 import ast
 import datetime
-import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from torchrl_ahrs.app.errors import GenerationError
-from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
-from torchrl_ahrs.llm.generation import generation_output_dir
+from torchrl_ahrs.llm.client import LLMClient, prompt_hash
+from torchrl_ahrs.llm.generation import GenerationError, extract_code_blocks, generation_output_dir, llm_and_task
 from torchrl_ahrs.llm.prompts import rule_generation_prompt
 from torchrl_ahrs.sandbox import check_source, validate_in_child
 from torchrl_ahrs.scheduling.rules import DEFAULT_REPOSITORY, RULE_ARITY, load_repository
 
-_CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)
 HEADER_IMPORTS = "import math\n\nimport torch\n"
 
 
@@ -40,12 +37,6 @@ class GenerationResult:
     accepted: dict[str, str] = field(default_factory=dict)
     refused: dict[str, list[str]] = field(default_factory=dict)
     path: Path | None = None
-
-
-def extract_code_blocks(text: str) -> list[str]:
-    """Fenced code blocks of an answer (```python ... ```); the whole text if there is no fence."""
-    blocks = _CODE_BLOCK.findall(text)
-    return blocks if blocks else [text]
 
 
 def split_rules(block: str) -> tuple[list[str], dict[str, str], dict[str, list[str]]]:
@@ -108,10 +99,7 @@ def hdpg_example() -> str:
 
 def generate(cfg: Any, output_dir: Path) -> GenerationResult:
     """Runs the whole generation for a composed config (``cfg.task``, ``cfg.llm``); writes ``rules.py``."""
-    llm_cfg = LLMConfig.from_cfg(OmegaConf.to_container(cfg.llm, resolve=True))
-    if not llm_cfg.model and not llm_cfg.replay_from:
-        raise GenerationError("generate_rules needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)")
-    task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
+    llm_cfg, task = llm_and_task(cfg, "generate_rules")
     components = list(task["components"])
     messages = rule_generation_prompt(task, components, hdpg_example())
     client = LLMClient(llm_cfg, run_dir=output_dir)
