@@ -278,7 +278,7 @@ def spread(mean_returns, var_returns, history, previous_weights):
 
 
 def test_generate_rules_writes_a_sandboxed_repository(server, tmp_path):
-    from torchrl_ahrs.generate_rules import generate
+    from torchrl_ahrs.app.generate_rules import generate
 
     server.script = [("ok", GENERATED_ANSWER)]
     cfg = OmegaConf.create(

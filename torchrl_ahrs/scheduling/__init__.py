@@ -17,8 +17,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from omegaconf import OmegaConf
-
+from torchrl_ahrs.common.config_access import select as _select
 from torchrl_ahrs.scheduling.rules import Rule, RuleRepository, load_repository, normalise_scores
 from torchrl_ahrs.scheduling.scheduler import RuleScheduler
 from torchrl_ahrs.scheduling.selectors import (
@@ -53,11 +52,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 LLM_SELECTORS = ("llm", "direct")
-
-
-def _select(cfg: Any, key: str, default: Any = None) -> Any:
-    value = OmegaConf.select(cfg, key, default=default) if OmegaConf.is_config(cfg) else default
-    return default if value is None else value
 
 
 def llm_is_offline(cfg: Any) -> bool:

@@ -225,7 +225,7 @@ class RuleScheduler(TrainerHookBase):
                 weights = self.base_weight + normalise_direct(decision.weights)  # w = base + x / sum x
                 rule_id = None
             else:
-                rule = self.repository[decision.rule_id]
+                rule = self.repository[decision.rule_id]  # type: ignore[index]  # set: keeps_weights returned above
                 weights = rule.weights(context.mean, context.var, context.history, self.weights, self.base_weight)
                 rule_id = rule.id
         except Exception as error:  # noqa: BLE001 (a rule failure must not stop training)
