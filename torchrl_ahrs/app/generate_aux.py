@@ -183,6 +183,7 @@ def _report(result: AuxGenerationResult) -> None:
 
 def run(cfg: DictConfig) -> int:
     """The command: generate into the output directory, print the outcome; exit status 1 if nothing was accepted."""
+    llm_and_task(cfg, "generate_aux")  # refuse a missing LLM before creating the output directory
     result = generate(cfg, generation_output_dir(cfg, "aux"))
     _report(result)
     return 0 if result.path is not None else 1

@@ -153,6 +153,7 @@ def _report(result: GenerationResult) -> None:
 
 def run(cfg: DictConfig) -> int:
     """The command: generate into the output directory, print the outcome; exit status 1 if nothing was accepted."""
+    llm_and_task(cfg, "generate_rules")  # refuse a missing LLM before creating the output directory
     result = generate(cfg, generation_output_dir(cfg, "rules"))
     _report(result)
     return 0 if result.accepted else 1
