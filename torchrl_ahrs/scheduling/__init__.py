@@ -20,7 +20,7 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from torchrl_ahrs.scheduling.rules import Rule, RuleRepository, load_repository, normalise_scores
-from torchrl_ahrs.scheduling.scheduler import RuleScheduler
+from torchrl_ahrs.scheduling.scheduler import RuleScheduler, _components_of
 from torchrl_ahrs.scheduling.selectors import (
     BanditSelector,
     ConstantSelector,
@@ -56,6 +56,8 @@ LLM_SELECTORS = ("llm", "direct")
 
 
 def _select(cfg: Any, key: str, default: Any = None) -> Any:
+    if cfg is not None and not OmegaConf.is_config(cfg):
+        cfg = OmegaConf.create(dict(cfg))  # a plain dict is as good as a Hydra config
     value = OmegaConf.select(cfg, key, default=default) if OmegaConf.is_config(cfg) else default
     return default if value is None else value
 
@@ -99,9 +101,18 @@ def build_selector(
 
 
 def build_scheduler(
-    cfg: Any, estimator: Any, components: list[str], run_dir: Path, logger: Any = None
+    cfg: Any,
+    estimator: Any,
+    components: list[str] | None = None,
+    run_dir: Path | None = None,
+    logger: Any = None,
 ) -> RuleScheduler:
-    """A :class:`RuleScheduler` configured from the whole Hydra config.
+    """A :class:`RuleScheduler` configured from the whole Hydra config (or a plain dict).
+
+    Every key has a default (``method.selector=constant``, ``scheduler.interval=100``,
+    ``scheduler.base_weight=0.5``, ``scheduler.history_length=5``, ``scheduler.blocking=true``,
+    the shipped rules), so ``build_scheduler({}, gae)`` works; ``components`` default to the
+    estimator's. ``method.initial_weights: null`` installs ``base_weight`` for every component.
 
     Example:
         >>> import torch
@@ -114,21 +125,27 @@ def build_scheduler(
         >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"], run_dir=None)
         >>> sched.selector.name, sched.interval, sched.weights.tolist()
         ('fixed', 2, [0.5, 0.5])
+        >>> build_scheduler({"method": {"selector": "bandit"}}, Estimator(), ["a", "b"]).selector.name
+        'bandit'
     """
+    components = _components_of(estimator, components)
     rules_path = _select(cfg, "scheduler.rules")
     repository = load_repository(rules_path, validate=rules_path is not None)
     run_dir = Path(run_dir) if run_dir is not None else None
     selector, note = build_selector(cfg, repository, list(components), run_dir)
     initial = _select(cfg, "method.initial_weights")
+    base_weight = float(_select(cfg, "scheduler.base_weight", 0.5))
+    if initial is None:  # the config's documented meaning of null: base_weight for every component
+        initial = [base_weight] * len(components)
     scheduler = RuleScheduler(
         estimator,
         list(components),
         repository,
         selector,
         interval=int(_select(cfg, "scheduler.interval", 100)),
-        base_weight=float(_select(cfg, "scheduler.base_weight", 0.5)),
+        base_weight=base_weight,
         history_length=int(_select(cfg, "scheduler.history_length", 5)),
-        initial_weights=list(initial) if initial is not None else None,
+        initial_weights=list(initial),
         blocking=bool(_select(cfg, "scheduler.blocking", True)),
         logger=logger,
         run_dir=run_dir,
