@@ -10,14 +10,17 @@ from torchrl_ahrs.rewards.components import (
     episode_return_keys,
     finished_episode_returns,
 )
+from torchrl_ahrs.rewards.info_terms import InfoRewardTerms, with_info_reward_terms
 
 __all__ = [
     "EPISODE_REWARD",
     "TOTAL",
     "ComponentLeaves",
     "ComponentRewardSum",
+    "InfoRewardTerms",
     "RewardComponents",
     "component_reward_keys",
     "episode_return_keys",
     "finished_episode_returns",
+    "with_info_reward_terms",
 ]

@@ -19,6 +19,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.scheduling.llm_selectors import DirectWeightSelector, LLMRuleSelector
 from torchrl_ahrs.scheduling.rules import Rule, RuleRepository, load_repository, normalise_scores
 from torchrl_ahrs.scheduling.scheduler import RuleScheduler, _components_of
 from torchrl_ahrs.scheduling.selectors import (
@@ -37,7 +38,9 @@ __all__ = [
     "ConstantSelector",
     "Decision",
     "DecisionContext",
+    "DirectWeightSelector",
     "FixedSelector",
+    "LLMRuleSelector",
     "RandomSelector",
     "ReturnStatistics",
     "Rule",
