@@ -7,7 +7,10 @@ ready :class:`RuleScheduler`:
   ``bandit`` | ``llm`` | ``direct``. ``llm`` and ``direct`` need ``cfg.llm.model``; with ``llm=offline``
   (no model) the ``bandit`` selector stands in and the run says so at start and in every decision.
 * ``cfg.scheduler``: ``interval``, ``history_length``, ``base_weight``, ``rules`` (a repository file,
-  null = the shipped one), ``blocking``.
+  null = the shipped one), ``blocking`` (``false`` hides LLM latency: the decision is applied when it
+  arrives, training goes on meanwhile).
+* ``cfg.llm.model`` set under ``llm=offline`` is refused at start (it would never be called);
+  ``cfg.llm.decision_budget`` bounds one blocking decision (all attempts and the correction) in seconds.
 * ``cfg.method.initial_weights``: weights before the first decision (null = ``base_weight``).
 """
 
@@ -76,6 +79,12 @@ def build_selector(
     """The selector named by ``cfg.method.selector`` and a note to attach to every decision ('' if none)."""
     name = _select(cfg, "method.selector", "constant")
     seed = int(_select(cfg, "seed", 0))
+    model, llm_name = _select(cfg, "llm.model"), _select(cfg, "llm.name", "offline")
+    if model and llm_name == "offline":  # a model that would silently not be called
+        raise ValueError(
+            f"llm.model={model} is set but llm=offline never calls a model; choose llm=openai, llm=ollama "
+            "or llm=replay (each takes llm.model), or drop llm.model"
+        )
     note = ""
     if name in LLM_SELECTORS and llm_is_offline(cfg):
         note = f"llm=offline: the bandit selector stands in for the '{name}' selector (no LLM is called)"

@@ -123,6 +123,7 @@ class RuleScheduler(TrainerHookBase):
         self.logger = logger
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.note = note
+        _share_settings(self.selector, components=self.components, base_weight=self.base_weight, interval=self.interval)
         self.statistics = ReturnStatistics(len(self.components), history_length)
         self.iteration = 0
         self.frames = 0
@@ -339,3 +340,16 @@ def _components_of(estimator: Any, components: list[str] | None) -> list[str]:
     if own is not None and list(own) != list(components):
         raise ValueError(f"components {list(components)} differ from the estimator's {list(own)}")
     return list(components)
+
+
+def _share_settings(selector: Any, **settings: Any) -> None:
+    """Gives an LLM selector the scheduler's components/base_weight/interval (shown in its prompts);
+    values the selector already holds must agree, so the prompt cannot describe another schedule."""
+    for name, value in settings.items():
+        if not hasattr(selector, name):
+            continue
+        own = getattr(selector, name)
+        if own is None:
+            setattr(selector, name, list(value) if isinstance(value, list) else value)
+        elif own != value:
+            raise ValueError(f"the selector's {name}={own!r} differs from the scheduler's {name}={value!r}")
