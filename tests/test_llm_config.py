@@ -78,3 +78,15 @@ def test_server_down_is_bounded_by_the_budget_not_the_backoff():
     started = time.monotonic()
     decision = selector.select(context())
     assert time.monotonic() - started < 1.5 and "decision budget spent after 1 attempt(s)" in decision.note
+
+
+def test_build_scheduler_with_an_llm_from_a_plain_dict(llm_server):
+    from torchrl_ahrs import build_scheduler
+
+    cfg = {
+        "method": {"selector": "llm"},
+        "llm": {"name": "openai", "model": "openai/x", "api_base": llm_server.api_base},
+    }
+    scheduler = build_scheduler(cfg, Estimator())
+    assert scheduler.selector.name == "llm" and scheduler.selector.client.config.model == "openai/x"
+    assert (scheduler.selector.interval, scheduler.selector.base_weight) == (100, 0.5)  # the scheduler's, once

@@ -204,12 +204,12 @@ class DirectWeightSelector(_LLMSelectorBase):
 def build_llm_selector(
     name: str, cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
 ) -> Selector:
-    """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``)."""
+    """``llm`` or ``direct`` from the config's ``llm`` and ``task`` sections (a Hydra config or a dict);
+    ``base_weight`` and ``interval`` come from the scheduler that receives the selector."""
+    cfg = cfg if OmegaConf.is_config(cfg) else OmegaConf.create(dict(cfg))
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
     client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
     task = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
-    base_weight = float(cfg.scheduler.base_weight)
-    interval = int(cfg.scheduler.interval)
     if name == "llm":
-        return LLMRuleSelector(client, repository, task, components, base_weight, interval)
-    return DirectWeightSelector(client, task, components, base_weight, interval)
+        return LLMRuleSelector(client, repository, task, components)
+    return DirectWeightSelector(client, task, components)
