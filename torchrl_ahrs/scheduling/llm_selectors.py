@@ -61,6 +61,15 @@ class _LLMSelectorBase(Selector):
             raise ValueError("an LLM selector needs a model string, e.g. 'openai/gpt-4o'")
         return LLMClient(LLMConfig(name="python", model=model, api_base=api_base, **options), run_dir=run_dir)
 
+    def settings(self) -> tuple[list[str], float, int]:
+        """``(components, base_weight, interval)``; unset ones are an error naming the fix."""
+        if self.components is None or self.base_weight is None or self.interval is None:
+            raise ValueError(
+                f"{type(self).__name__} has no components/base_weight/interval yet: hand it to a RuleScheduler "
+                "(which fills them in) or pass them to the constructor"
+            )
+        return self.components, self.base_weight, self.interval
+
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
         raise NotImplementedError
 
@@ -142,14 +151,9 @@ class LLMRuleSelector(_LLMSelectorBase):
         return cls(client, repository if repository is not None else load_repository(), task)
 
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
+        components, base_weight, interval = self.settings()
         return rule_selection_prompt(
-            self.task,
-            self.components,
-            self.repository.describe(),
-            len(self.repository),
-            context,
-            self.base_weight,
-            self.interval,
+            self.task, components, self.repository.describe(), len(self.repository), context, base_weight, interval
         )
 
     def parse(self, text: str) -> int:
@@ -189,7 +193,8 @@ class DirectWeightSelector(_LLMSelectorBase):
         return f"~[w1, ..., w{k}]~ with {k} non-negative numbers"
 
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
-        return direct_weights_prompt(self.task, self.components, context, self.base_weight, self.interval)
+        components, base_weight, interval = self.settings()
+        return direct_weights_prompt(self.task, components, context, base_weight, interval)
 
     def parse(self, text: str) -> list[float]:
         return parse_weights_answer(text, len(self.components or []))
@@ -209,7 +214,7 @@ def build_llm_selector(
     cfg = cfg if OmegaConf.is_config(cfg) else OmegaConf.create(dict(cfg))
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
     client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
-    task = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
+    task: Any = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
     if name == "llm":
         return LLMRuleSelector(client, repository, task, components)
     return DirectWeightSelector(client, task, components)

@@ -116,7 +116,7 @@ class ConsoleProgress(TrainerHookBase):
         """``rule 9 hdpg`` (the rule in force), ``direct weights`` or ``no rule yet``."""
         scheduler = self.scheduler
         if scheduler is None or getattr(scheduler, "rule_id", None) is None:
-            if scheduler is not None and getattr(scheduler, "decision_index", 0):
+            if scheduler is not None and int(getattr(scheduler, "decision_index", 0)) > 0:
                 return "direct weights"
             return "no rule yet"
         rule = scheduler.repository[scheduler.rule_id]
