@@ -35,16 +35,20 @@ def test_one_short_line_per_iteration_and_a_table_at_each_decision():
     gae, out = Gae(), io.StringIO()
     repo = load_repository()
     scheduler = RuleScheduler(gae, selector=FixedSelector(repo, "combined_mean_variance"), interval=2)
-    console = ConsoleProgress(10_000_000, NAMES, gae, scheduler, table_interval=0, stream=out)
+    now = [0.0]
+    console = ConsoleProgress(10_000_000, NAMES, gae, scheduler, table_interval=0, stream=out, clock=lambda: now[0])
     for it in range(4):
+        now[0] += 0.01  # 20 frames per 10 ms: 2k frames/s
         console(batch(100.0 + it))
         scheduler.observe_batch(batch(100.0 + it))
         scheduler.step()
     lines = out.getvalue().splitlines()
     progress = [line for line in lines if "frames/s" in line]
     assert len(progress) == 4 and all(len(line) <= LINE_WIDTH for line in progress)
-    assert progress[0].startswith("20/10M frames |") and "ETA" in progress[0] and "return 100" in progress[0]
-    assert progress[0].endswith("no rule yet") and "| rule 3 combined_mean" in progress[3]
+    assert progress[0] == "20/10M frames | 2k frames/s | ETA 1:23:19 | return 100 | no rule yet"
+    assert (
+        progress[3] == "80/10M frames | 2k frames/s | ETA 1:23:19 | return 103 | rule 3 combined_mean_v…"
+    )  # cut at 80
     tables = [i for i, line in enumerate(lines) if line.startswith("it ")]
     assert len(tables) == 1  # the decision after iteration 2, shown at iteration 3
     rows = lines[tables[0] + 2 : tables[0] + 5]

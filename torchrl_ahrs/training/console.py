@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, TextIO
 
 import torch
@@ -68,6 +68,7 @@ class ConsoleProgress(TrainerHookBase):
         table_interval: iterations between tables besides the decisions (0 = at decisions only).
         stream: where to write (default ``sys.stderr``).
         start_frames: frames already done (a resumed run).
+        clock: seconds for the rate and ETA (default ``time.monotonic``; tests pass a fake one).
 
     Example:
         >>> import io, torch
@@ -97,6 +98,7 @@ class ConsoleProgress(TrainerHookBase):
         table_interval: int = 10,
         stream: TextIO | None = None,
         start_frames: int = 0,
+        clock: Callable[[], float] = time.monotonic,
     ):
         self.total_frames = int(total_frames)
         self.components = list(components)
@@ -106,7 +108,8 @@ class ConsoleProgress(TrainerHookBase):
         self.stream = stream if stream is not None else sys.stderr
         self.frames = int(start_frames)
         self.start_frames = self.frames
-        self.started = time.monotonic()
+        self.clock = clock
+        self.started = clock()
         self.iteration = 0
         self.last_return: float | None = None
         self.last_component_returns: list[float] | None = None
@@ -124,7 +127,7 @@ class ConsoleProgress(TrainerHookBase):
 
     def line(self) -> str:
         """One line of at most 80 characters: frames, frames/s, ETA, total return, the rule in force."""
-        elapsed = max(time.monotonic() - self.started, 1e-9)
+        elapsed = max(self.clock() - self.started, 1e-9)
         rate = (self.frames - self.start_frames) / elapsed  # end to end: collection + update
         eta = (self.total_frames - self.frames) / rate if rate > 0 else float("inf")
         parts = [
