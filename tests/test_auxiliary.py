@@ -108,8 +108,9 @@ def test_transform_writes_aux_and_total_aux_next_to_the_native_reward():
         transforms=[lambda: AuxiliaryReward.from_file(path, scale=2.0, expected_digest=file_digest(path))],
     )
     check_env_specs(env)
-    spec = env.full_reward_spec["reward"]
-    assert {AUX, TOTAL_AUX} <= set(spec.keys())
+    # the component leaves are declared next to the total, which stays the env's only reward
+    assert env.reward_key == ("reward", "total")
+    assert {AUX, TOTAL_AUX} <= set(env.full_observation_spec["reward"].keys())
     rollout = env.rollout(5, break_when_any_done=False)
     reward = rollout["next", "reward"]
     assert reward[AUX].shape == (4, 5, 1) and reward[AUX].dtype == torch.float32

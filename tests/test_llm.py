@@ -53,7 +53,7 @@ def llm_config(server, **overrides):
 
 class Estimator:
     def __init__(self, k=3):
-        self.weights = torch.ones(k)
+        self.weights = torch.full((k,), 0.5)  # base weight: the scheduler keeps the estimator's weights
 
     def set_weights(self, weights):
         self.weights = weights.clone()

@@ -31,7 +31,7 @@ def rate_limit(headers):
 
 class Estimator:
     def __init__(self, k=3):
-        self.weights = torch.ones(k)
+        self.weights = torch.full((k,), 0.5)  # base weight: the scheduler keeps the estimator's weights
 
     def set_weights(self, weights):
         self.weights = weights.clone()

@@ -165,10 +165,9 @@ class ComponentReturnLog(TrainerHookBase):
             metrics["episodes"] = float(returns.shape[0])
             for name, column in zip(self.tracked, returns.mean(0).tolist(), strict=True):
                 metrics[f"return/{name}"] = column
-            metrics["log_pbar"] = True
         for name, weight in zip(self.components, self.estimator.weights.tolist(), strict=True):
             metrics[f"weight/{name}"] = weight
-        self.latest.update({key: value for key, value in metrics.items() if key != "log_pbar"})
+        self.latest.update(metrics)
         return metrics
 
     def state_dict(self) -> dict[str, Any]:
