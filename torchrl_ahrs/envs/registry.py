@@ -12,10 +12,10 @@ import importlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from torchrl.envs import EnvBase, RewardSum, Transform, TransformedEnv
+from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
-from torchrl_ahrs.rewards.components import TOTAL, component_reward_keys, episode_return_keys
+from torchrl_ahrs.rewards.components import TOTAL, ComponentRewardSum, component_reward_keys
 
 TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
 
@@ -98,7 +98,8 @@ def make_env(
         env = TransformedEnv(env)
     for make_transform in transforms:
         env.append_transform(make_transform())
-    missing = [key for key in component_reward_keys(tracked) if key not in env.full_reward_spec.keys(True, True)]
+    written = set(env.full_reward_spec.keys(True, True)) | set(env.full_observation_spec.keys(True, True))
+    missing = [key for key in component_reward_keys(tracked) if key not in written]
     if missing and any(key[-1] in (AUX, TOTAL_AUX) for key in missing):
         raise ValueError(
             f"components {components} name the auxiliary reward but no AuxiliaryReward transform was given; "
@@ -108,7 +109,7 @@ def make_env(
         raise ValueError(f"task {task_cfg['name']!r} does not write the reward leaves {missing}")
     if not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
-    env.append_transform(RewardSum(in_keys=component_reward_keys(tracked), out_keys=episode_return_keys(tracked)))
+    env.append_transform(ComponentRewardSum(tracked))
     return env
 
 
