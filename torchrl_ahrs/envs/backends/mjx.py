@@ -50,7 +50,9 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import io
 from functools import cache
 
 import mujoco
@@ -74,7 +76,9 @@ def _require_mjx():
         raise ImportError(MJX_INSTALL_HINT)
     import jax
     import jax.numpy as jnp
-    from mujoco import mjx
+
+    with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints "Failed to import warp" without [warp]
+        from mujoco import mjx
 
     return jax, jnp, mjx
 
