@@ -22,12 +22,11 @@ same. ``observation`` / ``on_reset`` may therefore read only qpos and qvel right
 every task here).
 
 Precision: JAX computes in float32 unless ``jax_enable_x64`` is set (``x64=True``); hooks always see float64
-tensors (a device-side cast), so their dtypes match the CPU backend.
+tensors on the CPU, so their dtypes and devices match the CPU backend.
 
-Host copies per control step (the remaining ones, all O(N·(A + nu))): the action to the CPU and the
-task's numpy ``ctrl`` back to the JAX device (``apply_action`` is shared with the CPU backend), and on a
-reset the sampled qpos/qvel rows (``reset_state`` draws from numpy). On a CPU device DLPack views are
-zero-copy; on a GPU the state stays on the device and the hooks' torch math runs there.
+Host copies: none on a CPU JAX device (DLPack views). On an accelerator the physics stays on the device
+but the hooks run on the CPU, so each control step copies the state fields to the host (O(N·(nq + nv +
+fields))) and ``ctrl`` back (O(N·nu)), and a reset copies the sampled qpos/qvel rows; see docs/mjx.md.
 
 Example:
     >>> import numpy as np, mujoco, torch
@@ -84,8 +83,9 @@ def _require_mjx():
 
 
 def _to_torch(array) -> torch.Tensor:
-    """A JAX array as a torch tensor through DLPack (zero-copy on the same device), cast to float64."""
-    return torch.from_dlpack(array).to(torch.float64)
+    """A JAX array as a float64 CPU torch tensor: a DLPack view (zero-copy) when JAX runs on the CPU, one
+    device-to-host copy when it runs on an accelerator (the task hooks' constants live on the CPU)."""
+    return torch.from_dlpack(array).to("cpu", torch.float64)
 
 
 class MjxBatchedEnv(BatchedMujocoEnv):
@@ -102,8 +102,8 @@ class MjxBatchedEnv(BatchedMujocoEnv):
 
     Class attribute ``x64``: run MJX in float64 (sets ``jax_enable_x64`` process-wide); default float32.
 
-    State read by the hooks: ``qpos`` [N, nq], ``qvel`` [N, nv], ``state_t[name]`` [N, *shape] float64 torch;
-    ``data`` is the batched ``mjx.Data`` (leading axis N).
+    State read by the hooks: ``qpos`` [N, nq], ``qvel`` [N, nv], ``state_t[name]`` [N, *shape] float64 CPU
+    torch, ``state[name]`` the same memory as numpy; ``data`` is the batched ``mjx.Data`` (leading axis N).
     """
 
     x64: bool = False
@@ -153,11 +153,8 @@ class MjxBatchedEnv(BatchedMujocoEnv):
         """Points ``state`` / ``state_t`` / ``qpos`` / ``qvel`` at the fields of ``data`` (DLPack, then float64)."""
         self.data = data
         self.state_t = {name: _to_torch(getattr(data, name)) for name in self._fields}
-        self.state = {name: tensor.numpy() for name, tensor in self.state_t.items()} if self._on_cpu() else {}
+        self.state = {name: tensor.numpy() for name, tensor in self.state_t.items()}
         self.qpos, self.qvel = self.state_t["qpos"], self.state_t["qvel"]
-
-    def _on_cpu(self) -> bool:
-        return self.state_t["qpos"].device.type == "cpu"
 
     def _physics_step(self) -> None:
         """Advances every env by ``decimation`` MJX steps in one jitted call."""
