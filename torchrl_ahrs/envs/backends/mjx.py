@@ -21,8 +21,9 @@ values until its next step; the next ``mjx.step`` starts with a full forward pas
 same. ``observation`` / ``on_reset`` may therefore read only qpos and qvel right after a reset (true for
 every task here).
 
-Precision: JAX computes in float32 unless ``jax_enable_x64`` is set (``x64=True``); hooks always see float64
-tensors on the CPU, so their dtypes and devices match the CPU backend.
+Precision: JAX computes in float32 unless ``jax_enable_x64`` is set (``mjx_variant(cls, x64=True)``,
+``task.mjx_x64=true``); hooks always see float64 tensors on the CPU, so their dtypes and devices match the
+CPU backend.
 
 Host copies: none on a CPU JAX device (DLPack views). On an accelerator the physics stays on the device
 but the hooks run on the CPU, so each control step copies the state fields to the host (O(N·(nq + nv +
