@@ -55,7 +55,8 @@ def get_builder(name: str, backend: str = "cpu") -> TaskBuilder:
         raise KeyError(f"unknown backend {backend!r}; backends: {', '.join(BACKENDS)}")
     builders = _MJX_BUILDERS if backend == "mjx" else _BUILDERS
     if name not in builders:
-        raise KeyError(f"unknown {backend} task {name!r}; available {backend} tasks: {', '.join(sorted(builders))}")
+        kind = "" if backend == "cpu" else f"{backend} "
+        raise KeyError(f"unknown {kind}task {name!r}; available {kind}tasks: {', '.join(sorted(builders))}")
     builder = builders[name]
     if isinstance(builder, str):
         module_name, function_name = builder.split(":")
