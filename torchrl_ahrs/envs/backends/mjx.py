@@ -136,7 +136,7 @@ class MjxBatchedEnv(BatchedMujocoEnv):
         self.control_dt = self.decimation * float(model.opt.timestep)
         self._fields = ("qpos", "qvel", *[f for f in self.state_fields if f not in ("qpos", "qvel")])
         self._pool = None
-        self._jnp = jnp
+        self._jax, self._jnp = jax, jnp
         self.mjx_model = mjx.put_model(model)
         reference = mjx.make_data(self.mjx_model)  # mj_resetData's state: qpos0, zero velocity, ctrl, warm start
         self.data = jax.tree.map(lambda x: jnp.broadcast_to(x, (num_envs, *x.shape)), reference)
@@ -152,7 +152,7 @@ class MjxBatchedEnv(BatchedMujocoEnv):
 
     def _publish(self, data) -> None:
         """Points ``state`` / ``state_t`` / ``qpos`` / ``qvel`` at the fields of ``data`` (DLPack, then float64)."""
-        self.data = data
+        self.data = self._jax.block_until_ready(data)  # wait outside DLPack: the step is dispatched asynchronously
         self.state_t = {name: _to_torch(getattr(data, name)) for name in self._fields}
         self.state = {name: tensor.numpy() for name, tensor in self.state_t.items()}
         self.qpos, self.qvel = self.state_t["qpos"], self.state_t["qvel"]
