@@ -214,15 +214,16 @@ def mjx_variant(task_class: type[BatchedMujocoEnv], x64: bool = False) -> type[B
     """The task class with its physics on MJX: ``type(name, (task_class, MjxBatchedEnv), {"x64": x64})``.
 
     The task's ``__init__`` calls ``super().__init__(model, ...)``, which the method resolution order sends
-    to :class:`MjxBatchedEnv`; every other hook stays the task's.
+    to :class:`MjxBatchedEnv`; every other hook stays the task's. One class per (task class, x64).
     """
-    return _variant(task_class, bool(x64))
+    key = (task_class, bool(x64))
+    if key not in _VARIANTS:
+        name = task_class.__name__.removesuffix("Env") + ("Mjx64Env" if x64 else "MjxEnv")
+        variant = type(name, (task_class, MjxBatchedEnv), {"x64": bool(x64)})
+        variant.__module__ = __name__
+        variant.__doc__ = f"{task_class.__name__} stepped on MJX (see :class:`MjxBatchedEnv`)."
+        _VARIANTS[key] = variant
+    return _VARIANTS[key]
 
 
-@cache
-def _variant(task_class: type[BatchedMujocoEnv], x64: bool) -> type[BatchedMujocoEnv]:
-    name = task_class.__name__.removesuffix("Env") + ("Mjx64Env" if x64 else "MjxEnv")
-    variant = type(name, (task_class, MjxBatchedEnv), {"x64": x64})
-    variant.__module__ = __name__
-    variant.__doc__ = f"{task_class.__name__} stepped on MJX (see :class:`MjxBatchedEnv`)."
-    return variant
+_VARIANTS: dict[tuple[type, bool], type[BatchedMujocoEnv]] = {}
