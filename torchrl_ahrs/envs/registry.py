@@ -36,6 +36,9 @@ _BUILDERS: dict[str, str] = {
     "cassie": "torchrl_ahrs.envs.tasks.cassie:make_cassie",
     "point_reach": "torchrl_ahrs.envs.tasks.point_reach:make_point_reach",
 }
+# task.backend=mjx: the same tasks stepped by MJX on JAX (the [mjx] extra); task.backend=cpu uses _BUILDERS
+_MJX_BUILDERS = dict.fromkeys(("ant", "cassie", "quadcopter"), "torchrl_ahrs.envs.tasks.mjx_tasks:make_mjx_task")
+BACKENDS = ("cpu", "mjx")
 
 
 def register_task(name: str, builder: TaskBuilder | str) -> None:
@@ -48,11 +51,15 @@ def available_tasks() -> list[str]:
     return sorted(_BUILDERS)
 
 
-def get_builder(name: str) -> TaskBuilder:
-    """The builder registered as ``name``; an unknown name raises with the accepted names."""
-    if name not in _BUILDERS:
-        raise KeyError(f"unknown task {name!r}; available tasks: {', '.join(available_tasks())}")
-    builder = _BUILDERS[name]
+def get_builder(name: str, backend: str = "cpu") -> TaskBuilder:
+    """The builder registered as ``name`` for ``backend`` (``cpu`` or ``mjx``); unknown names raise with the accepted ones."""
+    if backend not in BACKENDS:
+        raise KeyError(f"unknown backend {backend!r}; backends: {', '.join(BACKENDS)}")
+    builders = _MJX_BUILDERS if backend == "mjx" else _BUILDERS
+    if name not in builders:
+        kind = "" if backend == "cpu" else f"{backend} "
+        raise KeyError(f"unknown {kind}task {name!r}; available {kind}tasks: {', '.join(sorted(builders))}")
+    builder = builders[name]
     if isinstance(builder, str):
         module_name, function_name = builder.split(":")
         builder = getattr(importlib.import_module(module_name), function_name)
@@ -70,7 +77,8 @@ def make_env(
     """Builds the task and tracks each component's episode return.
 
     Args:
-        task_cfg: the task's config (``conf/task/<name>.yaml``); ``task_cfg["name"]`` picks the builder.
+        task_cfg: the task's config (``conf/task/<name>.yaml``); ``task_cfg["name"]`` and
+            ``task_cfg.get("backend", "cpu")`` pick the builder.
         num_envs: batch size N.
         seed: environment seed.
         components: the reward leaves that form the K axis; default ``task_cfg["components"]``.
@@ -93,7 +101,7 @@ def make_env(
         raise ValueError(f"num_envs must be at least 1, got {num_envs}")
     components = list(components if components is not None else task_cfg["components"])
     tracked = components + ([TOTAL] if TOTAL not in components else [])
-    env = get_builder(task_cfg["name"])(task_cfg, num_envs, seed, device)
+    env = get_builder(task_cfg["name"], task_cfg.get("backend", "cpu"))(task_cfg, num_envs, seed, device)
     if transforms and not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     for make_transform in transforms:
