@@ -25,9 +25,11 @@ COMPONENT_SCALES = ("raw", "standardize", "value_norm")
 class WeightedMultiGAE(GAE):
     """GAE over K reward components at once, mixed into one advantage for the policy.
 
-    Reads the component leaves ``("next", "reward", c)`` in ``components`` order, stacks them into
-    ``("next", "component_rewards")`` ``[*B, T, K]``, and runs TorchRL's GAE recursion once with a
-    K-column value network (done/terminated are expanded to K). Writes:
+    Keys follow TorchRL's meaning: ``reward`` names the *reward tree* whose leaves
+    ``("next", reward, c)`` ``[*B, T, 1]`` are read in ``components`` order (the layout written by
+    :class:`~torchrl_ahrs.rewards.RewardComponents`). Nothing is written into the tree. TorchRL's GAE
+    recursion runs once on the stack ``[*B, T, K]`` with a K-column value network (done/terminated are
+    expanded to K). Writes:
 
     - ``"advantage_components"`` ``[*B, T, K]``: each component's GAE advantage ``A_k``;
     - ``"value_target"`` ``[*B, T, K]``: each head's regression target;
@@ -46,8 +48,10 @@ class WeightedMultiGAE(GAE):
     ``w_k std(A'_k) / sum_j w_j std(A'_j)`` with ``A'`` the scaled advantages (logged as ``share/<c>``).
 
     ``weights`` is a registered buffer ``[K]`` (checkpointed with the module); replace it any time with
-    :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward_tree``, ``reward``,
-    ``advantage``, ``advantage_components``, ``value_target``, ``value``, ``done``, ``terminated``).
+    :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward``, ``advantage``,
+    ``advantage_components``, ``value_target``, ``value``, ``done``, ``terminated``). A PPO loss uses it
+    through ``loss.make_value_estimator(gae)`` (or :class:`~torchrl_ahrs.training.HybridClipPPOLoss`
+    with ``components=``).
 
     Args:
         components: reward component names; their order is the K axis.
@@ -69,12 +73,14 @@ class WeightedMultiGAE(GAE):
         >>> td = TensorDict({
         ...     "observation": torch.randn(B, T, 3),
         ...     "next": {"observation": torch.randn(B, T, 3),
-        ...              "reward": {"a": torch.randn(B, T, 1), "b": torch.randn(B, T, 1)},
+        ...              "reward": {"total": torch.randn(B, T, 1), "a": torch.randn(B, T, 1), "b": torch.randn(B, T, 1)},
         ...              "done": torch.zeros(B, T, 1, dtype=torch.bool),
         ...              "terminated": torch.zeros(B, T, 1, dtype=torch.bool)}}, [B, T])
         >>> td = gae(td)
-        >>> td["advantage_components"].shape, td["advantage"].shape
-        (torch.Size([4, 8, 2]), torch.Size([4, 8, 1]))
+        >>> td["advantage_components"].shape, td["advantage"].shape, td["next", "reward", "total"].shape
+        (torch.Size([4, 8, 2]), torch.Size([4, 8, 1]), torch.Size([4, 8, 1]))
+        >>> gae.out_keys
+        ['advantage', 'advantage_components', 'value_target']
         >>> round(gae.shares.sum().item(), 4)
         1.0
     """
@@ -86,8 +92,7 @@ class WeightedMultiGAE(GAE):
         advantage_components: NestedKey = "advantage_components"
         value_target: NestedKey = "value_target"
         value: NestedKey = "state_value"
-        reward_tree: NestedKey = "reward"
-        reward: NestedKey = "component_rewards"
+        reward: NestedKey = "reward"  # the reward tree's root: components are ("next", reward, c)
         done: NestedKey = "done"
         terminated: NestedKey = "terminated"
         steps_to_next_obs: NestedKey = "steps_to_next_obs"
@@ -127,6 +132,22 @@ class WeightedMultiGAE(GAE):
     def num_components(self) -> int:
         return len(self.components)
 
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        """The value network's inputs (now and next), every component leaf, done and terminated."""
+        value_in = list(getattr(self.value_network, "in_keys", []))
+        return [
+            *value_in,
+            *self.component_reward_keys(),
+            ("next", self.tensor_keys.done),
+            ("next", self.tensor_keys.terminated),
+            *[("next", *((key,) if isinstance(key, str) else key)) for key in value_in],
+        ]
+
+    @property
+    def out_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.advantage, self.tensor_keys.advantage_components, self.tensor_keys.value_target]
+
     def set_weights(self, weights: torch.Tensor | Sequence[float]) -> None:
         """Replaces the mixing weights in place; they must be K finite numbers."""
         weights = torch.as_tensor(weights, dtype=self.weights.dtype, device=self.weights.device)
@@ -140,20 +161,44 @@ class WeightedMultiGAE(GAE):
         self.weights.copy_(weights)
 
     def component_reward_keys(self) -> list[tuple]:
-        tree = self.tensor_keys.reward_tree
+        """``[("next", *reward, c) for c in components]``: the leaves read, in K order."""
+        tree = self.tensor_keys.reward
         tree = tree if isinstance(tree, tuple) else (tree,)
         return [("next", *tree, name) for name in self.components]
 
-    @torch.no_grad()
     def forward(self, tensordict: TensorDictBase, **kwargs) -> TensorDictBase:
-        rewards = stack_components([tensordict.get(key) for key in self.component_reward_keys()])  # [*B, T, K]
-        tensordict.set(("next", self.tensor_keys.reward), rewards)
-        super().forward(tensordict, **kwargs)
-        component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
-        tensordict.set(self.tensor_keys.advantage_components, component_advantages)
-        to_mix = self.scale_components(component_advantages, tensordict.get(self.tensor_keys.value_target))
-        self.shares.copy_(effective_shares(to_mix, self.weights))  # [K]
-        tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
+        """Writes the K component advantages, the K value targets and the mixed advantage.
+
+        Args:
+            tensordict: ``[*B, T]`` data with the value network's inputs (now and ``"next"``), the
+                component leaves ``("next", reward, c)`` ``[*B, T, 1]``, ``("next", "done")`` and
+                ``("next", "terminated")``.
+            **kwargs: ``params``/``target_params``/``time_dim``, as for TorchRL's GAE (a loss passes them).
+
+        Returns:
+            ``tensordict`` with ``advantage_components`` ``[*B, T, K]``, ``value_target`` ``[*B, T, K]`` and
+            ``advantage`` ``[*B, T, 1]`` = ``Σ_k w_k A'_k`` (``A'_k`` = ``A_k`` scaled by
+            ``component_scale``); ``shares`` ``[K]`` is updated.
+        """
+        reward = tensordict.get(("next", self.tensor_keys.reward), None)
+        if not isinstance(reward, TensorDictBase):
+            found = "nothing" if reward is None else f"a tensor of shape {tuple(reward.shape)}"
+            raise KeyError(
+                f"WeightedMultiGAE reads the reward tree ('next', {self.tensor_keys.reward!r}) with leaves "
+                f"{self.components}, found {found}; set_keys(reward=...) names the tree's root (e.g. 'reward'), "
+                "not the total"
+            )
+        missing = [name for name in self.components if name not in reward.keys()]
+        if missing:
+            raise KeyError(f"the reward tree has no leaves {missing} (it has {sorted(reward.keys())})")
+        with torch.no_grad():
+            # GAE reads the tree and hands it to _prepare_signals, which stacks it to [*B, T, K]
+            super().forward(tensordict, **kwargs)
+            component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
+            tensordict.set(self.tensor_keys.advantage_components, component_advantages)
+            to_mix = self.scale_components(component_advantages, tensordict.get(self.tensor_keys.value_target))
+            self.shares.copy_(effective_shares(to_mix, self.weights))  # [K]
+            tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
         return tensordict
 
     def scale_components(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
@@ -176,10 +221,11 @@ class WeightedMultiGAE(GAE):
         return scale_by(advantages, self.target_var.sqrt())  # A_k / sigma_k
 
     def _prepare_signals(self, reward, done, terminated, value):
+        rewards = stack_components([reward.get(name) for name in self.components])  # [*B, T, K]
         # TorchRL's recursion broadcasts silently; a critic with the wrong number of heads must fail loudly.
-        if value.shape[-1] != reward.shape[-1]:
+        if value.shape[-1] != rewards.shape[-1]:
             raise ValueError(
                 f"the value network returned {value.shape[-1]} value(s) per state but there are "
-                f"{reward.shape[-1]} reward components {self.components}; build the critic with K heads"
+                f"{rewards.shape[-1]} reward components {self.components}; build the critic with K heads"
             )
-        return reward, done.expand_as(reward), terminated.expand_as(reward)
+        return rewards, done.expand_as(rewards), terminated.expand_as(rewards)
