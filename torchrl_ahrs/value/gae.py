@@ -177,8 +177,8 @@ class WeightedMultiGAE(GAE):
 
         Returns:
             ``tensordict`` with ``advantage_components`` ``[*B, T, K]``, ``value_target`` ``[*B, T, K]`` and
-            ``advantage`` ``[*B, T, 1]`` = ``Σ_k w_k A'_k`` (``A'_k`` = ``A_k`` scaled by
-            ``component_scale``); ``shares`` ``[K]`` is updated.
+            ``advantage`` ``[*B, T, 1]`` = ``Σ_k w_k A_k`` (each ``A_k`` scaled by ``component_scale``
+            first); ``shares`` ``[K]`` is updated.
         """
         reward = tensordict.get(("next", self.tensor_keys.reward), None)
         if not isinstance(reward, TensorDictBase):
