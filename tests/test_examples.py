@@ -28,7 +28,10 @@ def test_ppo_on_a_gymnasium_mujoco_env_with_the_bandit():
     history = load("ppo_gymnasium").main(
         ["--frames", "2048", "--frames-per-batch", "1024", "--max-episode-steps", "100", "--epochs", "1"]
     )
-    assert len(history) == 2 and history[0] != history[1]  # the bandit's second decision moved the weights
+    # The bandit's decision moved the weights off the estimator's initial ones. (On main the second decision
+    # moved them again; with the paper's 8 rules the seeded bandit tries rules 5 then 1, which at K = 2 both
+    # rank forward above ctrl, and a scale-free mapping then gives the same weights.)
+    assert len(history) == 2 and history[0] != [1.0, 1.0] and history[0][0] != history[0][1]
 
 
 def test_plain_trainer_with_the_scheduler_hook():

@@ -14,7 +14,8 @@ The pieces, each usable on its own in a TorchRL pipeline, are importable from he
 * :class:`HybridClipPPOLoss` — PPO on the mixed advantage (builds its ``WeightedMultiGAE`` when needed);
 * :class:`RuleScheduler` — a trainer hook that reschedules the weights, with the selectors
   :class:`ConstantSelector`, :class:`FixedSelector`, :class:`RandomSelector`, :class:`BanditSelector`,
-  :class:`LLMRuleSelector` (AHRS) and :class:`DirectWeightSelector` (AHRS-D).
+  :class:`LLMRuleSelector` (AHRS) and :class:`DirectWeightSelector` (AHRS-D), and the
+  :class:`WeightMapping` from a rule's scores to the weights.
 
 Names are resolved on first use, so ``import torchrl_ahrs`` stays cheap (no torch, MuJoCo or litellm).
 """
@@ -43,6 +44,7 @@ _EXPORTS = {
     "BanditSelector": "torchrl_ahrs.scheduling",
     "LLMRuleSelector": "torchrl_ahrs.scheduling",
     "DirectWeightSelector": "torchrl_ahrs.scheduling",
+    "WeightMapping": "torchrl_ahrs.scheduling",
 }
 
 __all__ = [  # literal, so linters and type checkers see the public names
@@ -57,6 +59,7 @@ __all__ = [  # literal, so linters and type checkers see the public names
     "RandomSelector",
     "RewardComponents",
     "RuleScheduler",
+    "WeightMapping",
     "WeightedMultiGAE",
     "__version__",
     "build_scheduler",
@@ -74,6 +77,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load lazily b
         LLMRuleSelector,
         RandomSelector,
         RuleScheduler,
+        WeightMapping,
         build_scheduler,
         load_repository,
     )
