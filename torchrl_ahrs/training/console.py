@@ -52,8 +52,9 @@ class ConsoleProgress(TrainerHookBase):
         total_frames: the run's frame budget (for the ETA).
         components: the K components (the estimator's order).
         estimator: has ``weights [K]`` and ``shares [K]`` (a ``WeightedMultiGAE``: the shares of its last
-            call, the numbers logged as ``share/<c>``); without ``shares`` the table estimates them from the
-            batch's reward spreads with the same formula.
+            call, i.e. of the last update, the numbers logged as ``share/<c>``; after a decision the weight
+            column is already the new one); without ``shares`` the table estimates them from the batch's
+            reward spreads with the same formula.
         scheduler: optional ``RuleScheduler`` (``rule_id``, ``decision_index``, ``repository``).
         table_interval: iterations between tables besides the decisions (0 = at decisions only).
         stream: where to write (default ``sys.stderr``).
