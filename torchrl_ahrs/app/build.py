@@ -10,7 +10,7 @@ from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
+from torchrl.collectors import MultiAsyncCollector, MultiSyncCollector
 from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor
 
@@ -19,6 +19,7 @@ from torchrl_ahrs.app.config import resolve_components
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
+from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
 from torchrl_ahrs.value import WeightedMultiGAE
@@ -131,12 +132,13 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory):
     """``sync``: the envs step in this process between updates. ``multi``: ``workers`` processes each
     step ``num_envs / workers`` envs, all waiting for the update. ``async``: the worker processes keep
     collecting while the learner updates (each iteration trains on one worker's share of the batch,
-    gathered with the previous iteration's policy). On resume the trainer's registry restores the
-    collector's frame counter, so ``total_frames`` is always the whole budget."""
+    gathered with the previous iteration's policy). Each (worker's) collector is a
+    :class:`ResumableCollector`: on resume the trainer's registry restores its frame counter (so
+    ``total_frames`` is always the whole budget), its environments and the episodes they were in."""
     trainer_cfg = cfg.trainer
     frames_per_batch = trainer_cfg.frames_per_batch
     if trainer_cfg.collector == "sync":
-        return Collector(
+        return ResumableCollector(
             make_envs(trainer_cfg.num_envs, int(cfg.seed)),
             policy,
             frames_per_batch=frames_per_batch,
@@ -150,10 +152,19 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory):
     ]
     if trainer_cfg.collector == "async":
         return MultiAsyncCollector(
-            env_fns, policy, frames_per_batch=frames_per_batch // workers, total_frames=trainer_cfg.total_frames
+            env_fns,
+            policy,
+            frames_per_batch=frames_per_batch // workers,
+            total_frames=trainer_cfg.total_frames,
+            collector_class=ResumableCollector,
         )
     return MultiSyncCollector(
-        env_fns, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames, cat_results=0
+        env_fns,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=trainer_cfg.total_frames,
+        cat_results=0,
+        collector_class=ResumableCollector,
     )
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 from torchrl.envs import EnvBase, RewardSum, Transform, TransformedEnv
 
+from torchrl_ahrs.envs.common.snapshot import BaseEnvSnapshot
 from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
 from torchrl_ahrs.rewards.components import TOTAL, component_reward_keys, episode_return_keys
 
@@ -79,7 +80,9 @@ def make_env(
 
     Returns:
         A ``TransformedEnv`` with batch size ``[N]`` whose ``next`` tensordict holds
-        ``("reward", c)`` and ``("episode_reward", c)`` for every c in ``components`` and ``"total"``.
+        ``("reward", c)`` and ``("episode_reward", c)`` for every c in ``components`` and ``"total"``;
+        its ``state_dict()`` holds the simulator's running episodes when the backend can snapshot them
+        (:mod:`torchrl_ahrs.envs.common.snapshot`).
 
     Example:
         >>> from torchrl_ahrs.envs import load_task_config, make_env
@@ -107,6 +110,7 @@ def make_env(
     if not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     env.append_transform(RewardSum(in_keys=component_reward_keys(tracked), out_keys=episode_return_keys(tracked)))
+    env.append_transform(BaseEnvSnapshot())  # env.state_dict() holds the simulator's state when it has one
     return env
 
 
