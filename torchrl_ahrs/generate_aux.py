@@ -26,6 +26,7 @@ import torch
 from omegaconf import OmegaConf
 
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.generate_rules import extract_code_blocks
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
@@ -142,7 +143,9 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
         source_of(observation_ref) if observation_ref else None,
     )
     first_prompt_hash = prompt_hash(messages)
-    client = LLMClient(llm_cfg, run_dir=output_dir)
+    if llm_cfg.replay_from:
+        llm_cfg.replay_from = calls_log(llm_cfg.replay_from)
+    client = LLMClient(llm_cfg, calls_path=RunDirectory(output_dir).llm_calls)
     result = AuxGenerationResult()
     with tempfile.TemporaryDirectory() as scratch:
         inputs_path = Path(scratch) / "inputs.pt"

@@ -23,6 +23,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
 from torchrl_ahrs.llm.generation import generation_output_dir
 from torchrl_ahrs.llm.prompts import rule_generation_prompt
@@ -113,7 +114,9 @@ def generate(cfg: Any, output_dir: Path) -> GenerationResult:
     task = OmegaConf.to_container(cfg.task, resolve=True)
     components = list(task["components"])
     messages = rule_generation_prompt(task, components, hdpg_example())
-    client = LLMClient(llm_cfg, run_dir=output_dir)
+    if llm_cfg.replay_from:
+        llm_cfg.replay_from = calls_log(llm_cfg.replay_from)
+    client = LLMClient(llm_cfg, calls_path=RunDirectory(output_dir).llm_calls)
     reply = client.complete(messages, purpose="generate_rules")
     if reply.text is None:
         raise SystemExit(f"the LLM call failed: {reply.error}")

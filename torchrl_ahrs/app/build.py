@@ -3,9 +3,9 @@ optimiser, collector and scheduler. Nothing here runs an iteration (that is :mod
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -17,6 +17,7 @@ from torchrl.modules import ProbabilisticActor
 from torchrl_ahrs.app.auxiliary import TransformFactory, auxiliary_transform
 from torchrl_ahrs.app.config import resolve_components
 from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
@@ -169,12 +170,17 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory):
 
 
 def build_checked_scheduler(
-    cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run_dir: Path, logger
+    cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run: RunDirectory | None, logger
 ) -> RuleScheduler:
-    """``build_scheduler`` with every rule tried once on K-shaped statistics, so a rule file that
-    cannot serve this task fails at start as a :class:`ConfigError` rather than at the first decision."""
+    """``build_scheduler`` writing into ``run`` (decisions, LLM calls), with every rule tried once on
+    K-shaped statistics, so a rule file that cannot serve this task fails at start as a
+    :class:`ConfigError` rather than at the first decision. ``llm.replay_from`` may name a run directory."""
+    if cfg.get("llm") and cfg.llm.get("replay_from"):
+        cfg = copy.deepcopy(cfg)
+        cfg.llm.replay_from = calls_log(cfg.llm.replay_from)
+    decisions, llm_calls = (run.decisions, run.llm_calls) if run is not None else (None, None)
     try:
-        scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
+        scheduler = build_scheduler(cfg, estimator, components, decisions, logger, llm_calls)
     except (ValueError, KeyError, FileNotFoundError, ImportError, SyntaxError) as error:
         raise ConfigError(f"scheduler setup failed: {error}") from error
     num_components = len(components)

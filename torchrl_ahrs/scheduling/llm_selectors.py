@@ -139,11 +139,12 @@ class DirectWeightSelector(_LLMSelectorBase):
 
 
 def build_llm_selector(
-    name: str, cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
+    name: str, cfg: Any, repository: RuleRepository, components: list[str], llm_calls_path: Path | None
 ) -> Selector:
-    """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``)."""
+    """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``); every call is
+    logged to ``llm_calls_path``."""
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
-    client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
+    client = LLMClient(LLMConfig.from_cfg(llm_cfg), calls_path=llm_calls_path)
     task = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
     base_weight = float(cfg.scheduler.base_weight)
     interval = int(cfg.scheduler.interval)

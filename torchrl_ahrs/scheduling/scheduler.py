@@ -41,7 +41,6 @@ from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selecto
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 log = logging.getLogger(__name__)
-DECISIONS_FILE = "scheduler_decisions.jsonl"
 
 
 class WeightedEstimator(Protocol):
@@ -66,7 +65,7 @@ class RuleScheduler(TrainerHookBase):
         initial_weights: weights ``[K]`` installed at construction (default ``base_weight`` each).
         blocking: ``False`` runs the selector in a background thread.
         logger: optional TorchRL logger (``log_scalar``) for decision scalars.
-        run_dir: where ``scheduler_decisions.jsonl`` is written (one line per decision point).
+        decisions_path: the JSONL file that gets one line per decision point (None = none written).
         note: text attached to every decision log (e.g. that the bandit stands in for an LLM).
 
     Example:
@@ -99,7 +98,7 @@ class RuleScheduler(TrainerHookBase):
         initial_weights: list[float] | torch.Tensor | None = None,
         blocking: bool = True,
         logger: Any = None,
-        run_dir: str | Path | None = None,
+        decisions_path: str | Path | None = None,
         note: str = "",
     ):
         if interval < 1:
@@ -112,7 +111,7 @@ class RuleScheduler(TrainerHookBase):
         self.base_weight = float(base_weight)
         self.blocking = blocking
         self.logger = logger
-        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.decisions_path = Path(decisions_path) if decisions_path is not None else None
         self.note = note
         self.statistics = ReturnStatistics(len(self.components), history_length)
         self.iteration = 0
@@ -260,8 +259,8 @@ class RuleScheduler(TrainerHookBase):
             self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=step)
             for c, w in zip(self.components, self.weights.tolist(), strict=True):
                 self.logger.log_scalar(f"scheduler/decision_weight_{c}", w, step=step)
-        if self.run_dir is not None:
-            self.run_dir.mkdir(parents=True, exist_ok=True)
+        if self.decisions_path is not None:
+            self.decisions_path.parent.mkdir(parents=True, exist_ok=True)
             entry = {
                 "time": time.time(),
                 "iteration": self.iteration,
@@ -277,7 +276,7 @@ class RuleScheduler(TrainerHookBase):
                 "message": message,
                 "note": self.note,
             }
-            with open(self.run_dir / DECISIONS_FILE, "a") as handle:
+            with open(self.decisions_path, "a") as handle:
                 handle.write(json.dumps(entry) + "\n")
 
     # ---------------------------------------------------------------- checkpointing

@@ -34,6 +34,8 @@ class ResumableCollector(Collector):
         carrier = state_dict.get("carrier")
         if carrier is not None:
             # a worker of a multi-process collector receives it as a nested dict
-            self._carrier = TensorDict(carrier, batch_size=self.env.batch_size) if isinstance(carrier, dict) else carrier.clone()
+            self._carrier = (
+                TensorDict(carrier, batch_size=self.env.batch_size) if isinstance(carrier, dict) else carrier.clone()
+            )
             if "traj_pool" in state_dict:  # the base class drew new trajectory ids for a fresh carrier
                 self._traj_pool.load_state_dict(state_dict["traj_pool"])
