@@ -108,7 +108,16 @@ TINY = [
     "checkpoint.interval=1",
     "logger.backends=[csv]",
 ]
-METHODS = ["ppo", "hdppo", "ahrs_wo_a", "ahrs", "ppo_a", "hdppo_a", "ahrs_r", "ahrs_d"]  # ahrs_d: the bandit (llm=offline)
+METHODS = [
+    "ppo",
+    "hdppo",
+    "ahrs_wo_a",
+    "ahrs",
+    "ppo_a",
+    "hdppo_a",
+    "ahrs_r",
+    "ahrs_d",
+]  # ahrs_d: the bandit (llm=offline)
 
 
 @pytest.mark.slow

@@ -221,16 +221,19 @@ def config(method, llm="offline", **scheduler):
 
 def test_build_scheduler_for_the_shipped_methods(tmp_path, caplog):
     ppo = build_scheduler(
-        config({"selector": "constant", "initial_weights": [1.0]}), FakeEstimator(1), ["total"], tmp_path
+        config({"selector": "constant", "initial_weights": [1.0]}), FakeEstimator(1), ["total"], tmp_path / DECISIONS
     )
     assert ppo.selector.name == "constant" and ppo.weights.tolist() == [1.0]
     hdppo = build_scheduler(
-        config({"selector": "fixed", "rule": "hdpg", "initial_weights": None}), FakeEstimator(3), COMPONENTS, tmp_path
+        config({"selector": "fixed", "rule": "hdpg", "initial_weights": None}),
+        FakeEstimator(3),
+        COMPONENTS,
+        tmp_path / DECISIONS,
     )
     assert hdppo.selector.name == "fixed" and hdppo.selector.rule_id == REPO.get("hdpg").id
     with caplog.at_level(logging.INFO):
         offline = build_scheduler(
-            config({"selector": "llm", "initial_weights": None}), FakeEstimator(3), COMPONENTS, tmp_path
+            config({"selector": "llm", "initial_weights": None}), FakeEstimator(3), COMPONENTS, tmp_path / DECISIONS
         )
         run(offline, [make_batch([[1.0, 2.0, 3.0]])] * 3)
     assert offline.selector.name == "bandit" and "bandit selector stands in" in offline.note
