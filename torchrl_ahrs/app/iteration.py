@@ -21,7 +21,8 @@ the resulting order before training starts.
 
 Checkpointed state has one owner, the trainer's registry (``Trainer.state_dict``): the loss module
 (actor, critic, observation statistics), the optimiser (with the current learning rate), the collector,
-and every module registered below under its name. Saving and resuming both go through it.
+and every module registered below under its name (the full list is in :mod:`.checkpoint`). Saving and
+resuming both go through it, and a resumed run is bit-identical to an uninterrupted one on CPU.
 """
 
 from __future__ import annotations
@@ -196,6 +197,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     )  # fmt: skip
     register_iteration(trainer, parts)
     if resumed:
+        # last, after everything that draws random numbers while being built; from here to the first
+        # collection nothing draws, so the resumed run continues the saved one bit for bit
         trainer.load_state_dict(resumed)
         collector.update_policy_weights_()
 
