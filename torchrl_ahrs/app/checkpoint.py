@@ -10,9 +10,10 @@ A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.run_dir.RunDirect
   counters, targets/commands and reset-noise generator) and the carried tensordict (the last
   observation, running episode returns, trajectory ids; :class:`~torchrl_ahrs.training.collector.ResumableCollector`);
 - ``state``: the trainer's counters (collected frames, optimisation steps, last log/save);
-- every registered module by name: ``estimator`` (the mixing weights), ``actor``, ``component_returns``,
+- every registered module by name: ``estimator`` (the mixing weights, their only home: the scheduler
+  reads and sets them there), ``actor``, ``component_returns``,
   ``ppo_minibatches`` (its shuffling generator), ``obs_norm``, ``lr_decay`` (when ``anneal_lr``),
-  ``update_weights``, ``rule_scheduler`` (history, statistics, selector and its generator),
+  ``update_weights``, ``rule_scheduler`` (counters, last rule, statistics history, selector and its generator),
   ``video_log`` (when videos are on), ``rng`` (Python's, NumPy's and torch's global generators) and
   ``checkpoint`` (its iteration counter and the component names).
 

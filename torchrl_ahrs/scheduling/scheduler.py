@@ -124,12 +124,17 @@ class RuleScheduler(TrainerHookBase):
             initial = torch.as_tensor(initial_weights, dtype=torch.float32).reshape(-1)
         if initial.shape != (len(self.components),) or not torch.isfinite(initial).all():
             raise ValueError(f"initial_weights must be {len(self.components)} finite numbers, got {initial.tolist()}")
-        self.weights = initial.float()
-        self.estimator.set_weights(self.weights.clone())
+        self.estimator.set_weights(initial.float())
         self._executor: ThreadPoolExecutor | None = None
         self._pending: tuple[Future, DecisionContext] | None = None
         if note:
             log.warning("RuleScheduler: %s", note)
+
+    @property
+    def weights(self) -> torch.Tensor:
+        """The current weights ``[K]``: a copy of the estimator's, the one place they live (and are
+        checkpointed, with the estimator)."""
+        return self.estimator.weights.detach().clone().float()
 
     # ---------------------------------------------------------------- trainer hooks
     def register(self, trainer, name: str = "rule_scheduler") -> None:
@@ -233,8 +238,8 @@ class RuleScheduler(TrainerHookBase):
         if weights.shape != self.weights.shape or not torch.isfinite(weights).all():
             self._record(decision, f"invalid weights {weights.tolist()}; weights kept")
             return
-        self.weights, self.rule_id = weights.float(), rule_id
-        self.estimator.set_weights(self.weights.clone())
+        self.estimator.set_weights(weights.float())
+        self.rule_id = rule_id
         self.decision_index += 1
         self._record(decision, decision.note, context.summary, applied=True)
 
@@ -286,7 +291,6 @@ class RuleScheduler(TrainerHookBase):
             "frames": self.frames,
             "decision_index": self.decision_index,
             "rule_id": self.rule_id,
-            "weights": self.weights.clone(),
             "statistics": self.statistics.state_dict(),
             "selector": self.selector.state_dict(),
         }
@@ -296,8 +300,6 @@ class RuleScheduler(TrainerHookBase):
         self.frames = int(state_dict["frames"])
         self.decision_index = int(state_dict["decision_index"])
         self.rule_id = state_dict["rule_id"]
-        self.weights = state_dict["weights"].clone().float()
-        self.estimator.set_weights(self.weights.clone())
         self.statistics.load_state_dict(state_dict["statistics"])
         self.selector.load_state_dict(state_dict["selector"])
 
