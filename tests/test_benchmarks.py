@@ -80,3 +80,13 @@ def test_bench_envpool_tasks_runs(monkeypatch, capsys):
         "bench_envpool_tasks.py", ["--tasks", "ant_v5", "--num-envs", "2", "--steps", "8"], monkeypatch, capsys
     )
     assert out.splitlines()[-1].split()[0] == "ant_v5"
+
+
+def test_bench_mjx_runs(monkeypatch, capsys):
+    pytest.importorskip("mujoco.mjx", reason='JAX / mujoco-mjx absent: pip install -e ".[mjx]" runs this test')
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    argv = ["--task", "quadcopter", "--num-envs", "2", "--steps", "2", "--threads", "1"]
+    rows = [
+        line for line in run_script("bench_mjx.py", argv, monkeypatch, capsys).splitlines() if line.startswith("| 2 ")
+    ]
+    assert [row.split("|")[2].strip() for row in rows] == ["cpu", "mjx"]

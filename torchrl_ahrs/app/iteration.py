@@ -7,6 +7,7 @@ One iteration, step by step (``Trainer.train``'s hook points in brackets)::
     2. rewards         RewardComponents / AuxiliaryReward already wrote ("next", "reward", c), c = 1..K
        [batch_process] FiniteGuard: stop on NaN/inf; ObservationNormUpdate.remember(batch)
        [pre_steps_log] ComponentReturnLog: reward/<c>, return/<c>, weight/<c>, frames_per_second
+       [pre_steps_log] ConsoleProgress: one line (frames, frames/s, ETA, return, rule); a table at decisions
     3. advantages      [pre_epoch] PPOMinibatches: WeightedMultiGAE(batch) with the current critic
                        -> advantage_components [N,T,K], value_target [N,T,K], advantage = Σ_k w_k A_k
     4. PPO epochs      [process_optim_batch] shuffled minibatches -> HybridClipPPOLoss -> Adam (clipped)
@@ -49,6 +50,7 @@ from torchrl_ahrs.app.checkpoint import CheckpointHook, load_checkpoint, truncat
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import register_video_log
+from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.hooks import (
     ComponentReturnLog,
     FiniteGuard,
@@ -104,6 +106,15 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
         critic_norm = ObservationNormUpdate(networks.critic_norm, networks.critic_key)
     returns_log = ComponentReturnLog(parts["components"], parts["estimator"])
     returns_log.register(trainer)
+    if cfg.trainer.progress_bar:  # one short line per iteration, a per-component table now and then
+        ConsoleProgress(
+            cfg.trainer.total_frames,
+            parts["components"],
+            parts["estimator"],
+            parts["scheduler"],
+            table_interval=int(cfg.trainer.get("table_interval", 10)),
+            start_frames=int(parts.get("done_frames", 0)),
+        ).register(trainer)
     # 3-4. advantages and PPO epochs
     PPOMinibatches(parts["estimator"], num_minibatches(cfg), seed=int(cfg.seed)).register(trainer)
     trainer.register_op("post_optim_complete_log", loss_metrics)
@@ -178,7 +189,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         logger=logger,
         clip_grad_norm=True,
         clip_norm=cfg.trainer.max_grad_norm,
-        progress_bar=cfg.trainer.progress_bar,
+        progress_bar=False,  # ConsoleProgress prints the run's line (TorchRL's bar shows every pbar metric)
         # what has a state is overwritten by load_state_dict below; on resume, what has none (EnvPool's
         # simulators) starts episodes different from the first run's
         seed=cfg.seed + done_frames,
@@ -193,7 +204,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     checkpoint = CheckpointHook(run.checkpoint, cfg.checkpoint.interval or sys.maxsize, trainer.state_dict, components)
     parts = dict(
         cfg=cfg, run_dir=run.path, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
-        optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint,
+        optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, done_frames=done_frames,
     )  # fmt: skip
     register_iteration(trainer, parts)
     if resumed:
@@ -202,8 +213,11 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         trainer.load_state_dict(resumed)
         collector.update_policy_weights_()
 
-    if done_frames < cfg.trainer.total_frames:
-        trainer.train()  # its last iteration writes the final checkpoint
+    try:
+        if done_frames < cfg.trainer.total_frames:
+            trainer.train()  # its last iteration writes the final checkpoint
+    finally:
+        logger.close()  # TensorBoard's writer thread would otherwise still be writing after we return
     returns_log = trainer._modules["component_returns"]
     log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
     return dict(returns_log.latest)

@@ -61,6 +61,8 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
             "(every checkpoint.interval iterations, and at the end)"
         )
     cfg = OmegaConf.load(config_path)
+    if not isinstance(cfg, DictConfig):  # a YAML list would fail below with an unrelated message
+        raise EvaluationError(f"{config_path} is not a run configuration (not a mapping)")
     try:
         checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
     except Exception as error:  # torch raises many types for a damaged file

@@ -35,6 +35,13 @@ class FanoutLogger(Logger):
         for logger in self.loggers:
             logger.log_scalar(name, value, step=step)
 
+    def close(self) -> None:
+        """Flushes and closes every backend that holds a writer (TensorBoard's event file thread)."""
+        for logger in self.loggers:
+            close = getattr(getattr(logger, "experiment", None), "close", None)
+            if callable(close):
+                close()
+
     def log_video(self, name: str, video, step: int | None = None, **kwargs) -> None:
         for logger in self.loggers:
             logger.log_video(name, video, step=step, **kwargs)
