@@ -418,8 +418,8 @@ SMALLER_ANSWER = GOOD_ANSWER.replace("0.1 * (", "0.01 * (")
 def test_generator_trains_candidates_feeds_statistics_back_and_keeps_every_candidate(
     llm_server, loopback_only, tmp_path, monkeypatch
 ):
+    from torchrl_ahrs.app.runs import read_scalar as read_csv
     from torchrl_ahrs.generate_aux import generate
-    from torchrl_ahrs.reporting.runs import read_scalar as read_csv
     from torchrl_ahrs.reporting.stats import final_return
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from torchrl_ahrs.reporting.runs import Run
+from torchrl_ahrs.reporting.records import Run
 from torchrl_ahrs.reporting.stats import final_return
 from torchrl_ahrs.reporting.tables import share_rows, summary_rows
 

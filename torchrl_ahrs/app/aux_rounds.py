@@ -21,7 +21,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.reporting.runs import SCALARS_DIR, read_scalar
+from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.runs import read_scalar
 from torchrl_ahrs.reporting.stats import final_return
 
 WINDOW = 0.25  # the first / last quarter of a round are compared in the feedback
@@ -73,15 +74,15 @@ def round_scores(run_dir: Path, components: list[str], total_frames: int) -> dic
     Example:
         >>> import tempfile
         >>> run = Path(tempfile.mkdtemp())
-        >>> (run / SCALARS_DIR / "return").mkdir(parents=True)
-        >>> _ = (run / SCALARS_DIR / "return" / "total.csv").write_text("100,1.0\\n900,3.0\\n1000,5.0\\n")
+        >>> (RunDirectory(run).scalars / "return").mkdir(parents=True)
+        >>> _ = RunDirectory(run).scalar("return/total").write_text("100,1.0\\n900,3.0\\n1000,5.0\\n")
         >>> round_scores(run, ["total"], 1000)["final return/total"]
         4.0
     """
     scores: dict[str, float] = {}
     for name in [*components, "total"]:
         for kind in ("return", "weight", "share"):
-            path = run_dir / SCALARS_DIR / kind / f"{name}.csv"
+            path = RunDirectory(run_dir).scalar(f"{kind}/{name}")
             if not path.is_file():
                 continue
             steps, values = read_scalar(path)

@@ -35,6 +35,7 @@ from omegaconf import DictConfig
 
 from torchrl_ahrs.app.aux_rounds import Candidate, choose, scores_text, train_round, write_index
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.common.config_access import select
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt, training_feedback_message
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
@@ -112,7 +113,9 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
     rounds = int(select(cfg, "aux.generate.train_rounds", 0))
     frames = int(select(cfg, "aux.generate.train_frames", 40_960))
     first_prompt_hash = prompt_hash(messages)
-    client = LLMClient(llm_cfg, run_dir=output_dir)
+    if llm_cfg.replay_from:
+        llm_cfg.replay_from = calls_log(llm_cfg.replay_from)
+    client = LLMClient(llm_cfg, calls_path=RunDirectory(output_dir).llm_calls)
     result = AuxGenerationResult()
     candidates: list[Candidate] = []
     with tempfile.TemporaryDirectory() as scratch:

@@ -1,6 +1,6 @@
 """AHRS scheduling: rule repositories, return statistics, selectors and the RuleScheduler hook.
 
-``build_scheduler(cfg, estimator, components, run_dir, logger)`` turns the Hydra config into a
+``build_scheduler(cfg, estimator, components, decisions_path, logger, llm_calls_path)`` turns the Hydra config into a
 ready :class:`RuleScheduler`:
 
 * ``cfg.method.selector``: ``constant`` | ``fixed`` (with ``cfg.method.rule``) | ``random`` |
@@ -107,7 +107,7 @@ def weight_mapping(cfg: Any) -> WeightMapping:
 
 
 def build_selector(
-    cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
+    cfg: Any, repository: RuleRepository, components: list[str], llm_calls_path: Path | None = None
 ) -> tuple[Selector, str]:
     """The selector named by ``cfg.method.selector`` and a note to attach to every decision ('' if none)."""
     name = _select(cfg, "method.selector", "constant")
@@ -141,7 +141,7 @@ def build_selector(
     if name in LLM_SELECTORS:
         from torchrl_ahrs.scheduling.llm_selectors import build_llm_selector
 
-        return build_llm_selector(name, cfg, repository, components, run_dir), note
+        return build_llm_selector(name, cfg, repository, components, llm_calls_path), note
     raise ValueError(f"unknown selector {name!r}; choose constant, fixed, random, bandit, llm or direct")
 
 
@@ -149,10 +149,12 @@ def build_scheduler(
     cfg: Any,
     estimator: Any,
     components: list[str] | None = None,
-    run_dir: Path | None = None,
+    decisions_path: Path | None = None,
     logger: Any = None,
+    llm_calls_path: Path | None = None,
 ) -> RuleScheduler:
-    """A :class:`RuleScheduler` configured from the whole Hydra config (or a plain dict).
+    """A :class:`RuleScheduler` configured from the whole Hydra config (or a plain dict); it appends its
+    decisions to ``decisions_path`` and an LLM selector its calls to ``llm_calls_path`` (None: not written).
 
     Every key has a default (``method.selector=constant``, the interval of :func:`decision_interval`,
     ``scheduler.base_weight=0.5``, ``scheduler.history_length=5``, ``scheduler.blocking=true``,
@@ -167,7 +169,7 @@ def build_scheduler(
         >>> class Estimator:
         ...     weights = torch.ones(2)
         ...     def set_weights(self, w): self.weights = w.clone()
-        >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"], run_dir=None)
+        >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"])
         >>> sched.selector.name, sched.interval, sched.weights.tolist(), len(sched.repository)
         ('fixed', 2, [0.5, 0.5], 1)
         >>> build_scheduler({"method": {"selector": "bandit"}}, Estimator(), ["a", "b"]).selector.name
@@ -180,8 +182,7 @@ def build_scheduler(
         repository = load_repository(shipped, num_components=len(components))
     else:
         repository = load_repository(rules_path, validate=True, num_components=len(components))
-    run_dir = Path(run_dir) if run_dir is not None else None
-    selector, note = build_selector(cfg, repository, list(components), run_dir)
+    selector, note = build_selector(cfg, repository, list(components), llm_calls_path)
     initial = _select(cfg, "method.initial_weights")
     base_weight = float(_select(cfg, "scheduler.base_weight", 0.5))
     if initial is None:  # the config's documented meaning of null: base_weight for every component
@@ -197,7 +198,7 @@ def build_scheduler(
         initial_weights=list(initial),
         blocking=bool(_select(cfg, "scheduler.blocking", True)),
         logger=logger,
-        run_dir=run_dir,
+        decisions_path=decisions_path,
         note=note,
         mapping=weight_mapping(cfg),
     )
