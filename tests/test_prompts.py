@@ -47,7 +47,13 @@ def test_selection_prompt_sent_holds_description_meanings_and_reward_code(
     llm_server.script = [("ok", answer)]
     cfg = ant_cfg(llm_server, selector)
     components = [*cfg.task.components, "aux"]
-    scheduler = build_scheduler(cfg, Estimator(len(components)), components, tmp_path)
+    scheduler = build_scheduler(
+        cfg,
+        Estimator(len(components)),
+        components,
+        tmp_path / "decisions.jsonl",
+        llm_calls_path=tmp_path / "calls.jsonl",
+    )
     scheduler.statistics.add(torch.arange(len(components), dtype=torch.float32)[None], torch.tensor([3.0]))
     scheduler.step()
     prompt = llm_server.requests[0]["body"]["messages"][0]["content"]

@@ -12,7 +12,7 @@ One iteration, step by step (``Trainer.train``'s hook points in brackets)::
                        -> advantage_components [N,T,K], value_target [N,T,K], advantage = Σ_k w_k A_k
     4. PPO epochs      [process_optim_batch] shuffled minibatches -> HybridClipPPOLoss -> Adam (clipped)
        [post_optim_complete_log] loss_metrics: train/<loss term>
-       [post_steps_log] ComponentShareLog: share/<c> = w_k std(A'_k) / sum_j w_j std(A'_j)
+       [post_optim_complete_log] ComponentShareLog: share/<c> = w_k std(A'_k) / sum_j w_j std(A'_j)
     5. after update    [post_steps] ObservationNormUpdate.apply, LinearLRDecay, UpdateWeights (collector)
     6. schedule        [post_steps] RuleScheduler: every `interval` iterations stats -> rule -> w_k
     7. checkpoint      [post_steps] CheckpointHook: everything in the trainer's registry, atomically

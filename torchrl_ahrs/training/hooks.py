@@ -184,8 +184,10 @@ class ComponentReturnLog(TrainerHookBase):
 class ComponentShareLog:
     """Logs each component's effective share of the mixed advantage, ``share/<c>``, once per iteration.
 
-    Registered at ``post_steps_log`` (after the epochs), it reads the estimator's ``shares [K]``,
-    ``w_k std(A'_k) / sum_j w_j std(A'_j)`` from the last advantage computation of the iteration.
+    Registered at ``post_optim_complete_log`` (after the epochs, before the ``post_steps`` checkpoint, so
+    an interrupted and resumed run logs the same rows as an uninterrupted one), it reads the estimator's
+    ``shares [K]``, ``w_k std(A'_k) / sum_j w_j std(A'_j)`` from the last advantage computation of the
+    iteration.
 
     Example:
         >>> import torch
@@ -203,8 +205,12 @@ class ComponentShareLog:
         shares = self.estimator.shares.tolist()
         return {f"share/{name}": share for name, share in zip(self.components, shares, strict=True)}
 
+    def after_epochs(self, optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, float]:
+        """The ``post_optim_complete_log`` hook: ``share/<c>`` of this iteration's update."""
+        return self(None)
+
     def register(self, trainer: Trainer) -> None:
-        trainer.register_op("post_steps_log", self)
+        trainer.register_op("post_optim_complete_log", self.after_epochs)
 
 
 def loss_metrics(optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, float] | None:
