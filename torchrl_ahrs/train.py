@@ -59,9 +59,11 @@ from torchrl_ahrs.training.hooks import (
     PPOMinibatches,
     loss_metrics,
 )
+from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
 from torchrl_ahrs.training.loggers import build_logger
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.value_norm import ValueNorm, ValueTargetNormalization, denormalized_critic
 from torchrl_ahrs.training.video import register_video_log
 from torchrl_ahrs.value import WeightedMultiGAE
 
@@ -136,7 +138,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     obs_norm = RunningNorm(obs_dim)
     critic_norm = obs_norm if critic_key == "observation" else RunningNorm(critic_obs_dim)
     actor = build_actor(obs_norm, obs_dim, action_spec, model.hidden_sizes, model.activation, model.init_log_std)
-    critic = build_critic(
+    loss_critic = build_critic(
         critic_norm,
         critic_obs_dim,
         len(components),
@@ -145,6 +147,10 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         model.separate_heads,
         in_key=critic_key,
     )
+    # value_norm: the loss regresses loss_critic's normalised heads; GAE (and the checkpoint) use `critic`,
+    # the same network with each head mapped back to reward units (training/value_norm.py)
+    value_norm = ValueNorm(len(components)) if cfg.ppo.get("value_norm", False) else None
+    critic = denormalized_critic(loss_critic, value_norm) if value_norm is not None else loss_critic
 
     # --- advantage, loss, optimiser ---------------------------------------------------------------
     ppo = cfg.ppo
@@ -157,13 +163,14 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     )
     loss = HybridClipPPOLoss(
         actor,
-        critic,
+        loss_critic,
         clip_epsilon=ppo.clip_epsilon,
         entropy_bonus=ppo.entropy_coef > 0,
         entropy_coeff=ppo.entropy_coef,
         critic_coeff=ppo.critic_coef,
         loss_critic_type="l2",
         normalize_advantage=ppo.normalize_advantage,
+        clip_value=ppo.get("clip_value"),  # in normalised units when value_norm is on
     )
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5)
 
@@ -193,7 +200,13 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         auto_log_optim_steps=False,
     )
     trainer.register_op("batch_process", FiniteGuard(components))
-    minibatches = PPOMinibatches(estimator, cfg.trainer.num_minibatches, seed=cfg.seed)
+    minibatches = PPOMinibatches(
+        estimator,
+        cfg.trainer.num_minibatches,
+        seed=cfg.seed,
+        keys=[*loss.in_keys, "advantage", "value_target", "state_value", "loc", "scale"],
+        post_estimate=ValueTargetNormalization(value_norm) if value_norm is not None else None,
+    )
     minibatches.register(trainer)
     scheduler = make_scheduler(cfg, estimator, components, run_dir, logger)
     scheduler.register(trainer, "rule_scheduler")
@@ -201,7 +214,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if critic_norm is not obs_norm:
         ObservationNormUpdate(critic_norm, critic_key).register(trainer, "critic_obs_norm")
     lr_decay = LinearLRDecay(optimizer, cfg.trainer.total_frames)
-    if cfg.trainer.anneal_lr:
+    if ppo.get("kl_target"):  # adaptive KL schedule (training/kl_schedule.py) replaces the linear decay
+        AdaptiveKLLR(optimizer, actor.module[0].module, target=ppo.kl_target).register(trainer)
+    elif cfg.trainer.anneal_lr:
         lr_decay.register(trainer)
     UpdateWeights(collector, update_weights_interval=1).register(trainer)
     returns_log = ComponentReturnLog(components, estimator)
@@ -235,7 +250,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         checkpoint.load_state_dict(resumed)
         set_rng_state(resumed["rng"])
         trainer.collected_frames = done_frames
-        lr_decay()  # the learning rate the interrupted run had reached
+        if not ppo.get("kl_target"):
+            lr_decay()  # the learning rate the interrupted run had reached (the adaptive one is in the optimizer)
         collector.update_policy_weights_()
 
     if done_frames < cfg.trainer.total_frames:
