@@ -7,15 +7,17 @@ effective step size depend on the reward scale. rl_games (``normalize_value: Tru
 (``empirical_normalization``) standardise value targets with running statistics; here the statistics
 are kept per head (``[K]``), so each component is regressed on a unit scale.
 
-The data flow, for ``value_norm = ValueNorm(K)``::
+The data flow, for ``value_norm = make_value_norm("running", K)``::
 
     critic_net(obs)                  -> v_n   [*B, K]   normalised units (what the loss regresses)
-    value_norm(v_n)                  -> v     [*B, K]   v = v_n * sigma + mu   (what GAE bootstraps on)
+    Denormalize(value_norm)(v_n)     -> v     [*B, K]   v = v_n * sigma + mu   (what GAE bootstraps on)
     WeightedMultiGAE                 -> value_target, state_value in reward units
     ValueTargetNormalization(batch)  -> both rewritten as (x - mu) / sigma for the loss
 
-Plain running statistics (as rl_games does) rather than PopArt: the output jump when ``mu, sigma``
-move is small because they are updated once per batch from ~10^3-10^4 targets.
+The statistics are TorchRL's (``RunningValueNorm``: exact running mean/variance as rl_games' running
+mean-std; or ``PopArtValueNorm``'s EMA), with ``shape=K``: one mean and one variance per head. As in
+rl_games, the network's output is not rescaled when the statistics move (PopArt's output-preserving
+update is not applied): they are updated once per batch from ~10^3 targets, so the jump is small.
 """
 
 from __future__ import annotations
@@ -26,32 +28,46 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
+from torchrl.modules import PopArtValueNorm, RunningValueNorm
+from torchrl.modules.value_norm import ValueNorm
 
-from torchrl_ahrs.training.models import RunningNorm
+VALUE_NORMS = {"running": RunningValueNorm, "popart": PopArtValueNorm}
 
 
-class ValueNorm(RunningNorm):
-    """Running per-head mean/variance of value targets; ``forward`` maps normalised values back.
+def make_value_norm(kind: str | None, num_heads: int) -> ValueNorm | None:
+    """TorchRL's value normaliser with per-head statistics (``shape=K``): ``"running"`` (exact Welford
+    mean/variance, :class:`~torchrl.modules.RunningValueNorm`), ``"popart"`` (debiased EMA,
+    :class:`~torchrl.modules.PopArtValueNorm`), or ``None``/``False`` (no normalisation).
 
-    Shapes: statistics ``[K]``; :meth:`normalize` and :meth:`forward` take and return ``[*B, K]``.
+    Example:
+        >>> make_value_norm("running", 3).mean.shape
+        torch.Size([3])
+    """
+    if not kind:
+        return None
+    kind = "running" if kind is True else kind  # ppo.value_norm=true: the default kind
+    if kind not in VALUE_NORMS:
+        raise ValueError(f"unknown ppo.value_norm {kind!r}; choose from {sorted(VALUE_NORMS)} or null")
+    return VALUE_NORMS[kind](shape=num_heads)
+
+
+class Denormalize(nn.Module):
+    """``v_n [*B, K] -> v = v_n * sigma + mu [*B, K]`` with a TorchRL :class:`~torchrl.modules.ValueNorm`'s statistics.
 
     Example:
         >>> import torch
-        >>> norm = ValueNorm(2)
+        >>> norm = make_value_norm("running", 2)
         >>> norm.update(torch.tensor([[0.0, 100.0], [2.0, 300.0]]))
-        >>> z = norm.normalize(torch.tensor([[1.0, 200.0]]))
-        >>> z.abs().max() < 1e-4, torch.allclose(norm(z), torch.tensor([[1.0, 200.0]]))
-        (tensor(True), True)
+        >>> Denormalize(norm)(torch.tensor([[1.0, -1.0]]))
+        tensor([[  2., 100.]])
     """
 
-    def __init__(self, num_heads: int, eps: float = 1e-5):
-        super().__init__(num_heads, clip=float("inf"), eps=eps)
-
-    def normalize(self, values: torch.Tensor) -> torch.Tensor:
-        return (values - self.mean) / torch.sqrt(self.var + self.eps)  # v_n = (v - mu) / sigma
+    def __init__(self, value_norm: ValueNorm):
+        super().__init__()
+        self.value_norm = value_norm
 
     def forward(self, normalized: torch.Tensor) -> torch.Tensor:
-        return normalized * torch.sqrt(self.var + self.eps) + self.mean  # v = v_n * sigma + mu
+        return self.value_norm.denormalize(normalized)  # v = v_n * sigma + mu
 
 
 def denormalized_critic(critic: TensorDictModule, value_norm: ValueNorm) -> TensorDictModule:
@@ -64,14 +80,16 @@ def denormalized_critic(critic: TensorDictModule, value_norm: ValueNorm) -> Tens
         >>> import torch
         >>> from tensordict import TensorDict
         >>> net = TensorDictModule(torch.nn.Linear(3, 2), in_keys=["observation"], out_keys=["state_value"])
-        >>> norm = ValueNorm(2)
+        >>> norm = make_value_norm("running", 2)
         >>> norm.update(torch.tensor([[0.0, 10.0], [2.0, 30.0]]))
         >>> td = denormalized_critic(net, norm)(TensorDict({"observation": torch.zeros(4, 3)}, [4]))
         >>> td["state_value"].shape
         torch.Size([4, 2])
     """
     return TensorDictModule(
-        nn.Sequential(critic.module, value_norm), in_keys=list(critic.in_keys), out_keys=list(critic.out_keys)
+        nn.Sequential(critic.module, Denormalize(value_norm)),
+        in_keys=list(critic.in_keys),
+        out_keys=list(critic.out_keys),
     )
 
 
@@ -85,7 +103,7 @@ class ValueTargetNormalization:
     Example:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> hook = ValueTargetNormalization(ValueNorm(1))
+        >>> hook = ValueTargetNormalization(make_value_norm("running", 1))
         >>> td = TensorDict({"value_target": torch.tensor([[10.0], [30.0]]),
         ...                  "state_value": torch.tensor([[20.0], [20.0]])}, [2])
         >>> td = hook(td, new_batch=True)
