@@ -67,6 +67,9 @@ def test_ppo_is_the_same_loop_with_one_head_on_total(tmp_path):
         ("method.initial_weights=[1.0,2.0]", "method.initial_weights has 2 values"),
         ("method.components=[distance,speed]", "does not have"),
         ("trainer.collector=threads", "trainer.collector must be"),
+        ("ppo.value_norm=batch", "ppo.value_norm must be running, popart or null"),
+        ("ppo.kl_target=0", "ppo.kl_target must be a positive number or null"),
+        ("ppo.clip_value=-1", "ppo.clip_value must be a positive number or null"),
     ],
 )
 def test_impossible_values_name_the_field(override, message):
