@@ -20,6 +20,7 @@ FAST = [
     "trainer.progress_bar=false",
     "ppo.gamma=0.95",
     "model.hidden_sizes=[64,64]",
+    "ppo.value_norm=running",  # the per-head value normalisation of the presets (K = 3 heads here)
 ]
 
 
