@@ -175,7 +175,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         # per minibatch, a third of a small-minibatch loss step, and nothing here needs functional calls
         functional=False,
     )
-    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5)
+    # fused: one kernel for all parameters; the per-tensor Python loop cost 1.7 ms per step against 0.27 ms
+    # (measured with [64, 64] networks, one thread), as much as the loss forward at small minibatches
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5, fused=True)
 
     # --- collection and the trainer ---------------------------------------------------------------
     done_frames = resumed["collected_frames"] if resumed else 0
