@@ -8,7 +8,7 @@ Writes (small, text only, committed with the repo):
 
 * ``curve.csv``: ``frames, return_total, reward_per_step, episodes, frames_per_second`` per iteration
   (return over the episodes that ended in that batch; blank when none ended);
-* ``evaluation.json``: the run's ``python -m torchrl_ahrs.evaluate run=<dir>`` summary (must exist);
+* ``evaluation.json``: the run's ``python -m torchrl_ahrs.evaluate run=<dir>`` summary (when it has one);
 * ``config.yaml``: the resolved training config;
 * ``timing.txt``: the wall time and load line written by the launching script, plus ``--note``.
 """
@@ -49,7 +49,8 @@ def record(run_dir: Path, name: str, note: str = "") -> Path:
         writer.writerow(["frames", *SCALARS])
         for frame in frames:
             writer.writerow([frame, *(series[c].get(frame, "") for c in SCALARS)])
-    shutil.copy(run_dir / "evaluation.json", out / "evaluation.json")
+    if (run_dir / "evaluation.json").exists():  # absent for runs stopped early (an ablation cut short)
+        shutil.copy(run_dir / "evaluation.json", out / "evaluation.json")
     shutil.copy(run_dir / "config.yaml", out / "config.yaml")
     timing = (run_dir / "timing.txt").read_text() if (run_dir / "timing.txt").exists() else ""
     (out / "timing.txt").write_text(timing + (note + "\n" if note else ""))
