@@ -16,7 +16,7 @@ import time
 import numpy as np
 import torch
 
-from torchrl_ahrs.envs.ant_v5_mujoco import AntV5Mujoco
+from torchrl_ahrs.envs.tasks.ant_v5_mujoco import AntV5Mujoco
 
 
 def _rates(env_steps: int, start: float, cpu_start: float) -> tuple[float, float]:

@@ -4,7 +4,7 @@ Both train PPO on the MuJoCo Ant-v5 task for the same number of frames with the 
 (N envs x T steps per batch, E epochs, M minibatches), the same network widths, the same seed and
 the same thread count:
 
-- ``ours``: :func:`torchrl_ahrs.train.train` with ``task=ant_v5 method=<ppo|hdppo>`` (EnvPool's Ant-v5
+- ``ours``: :func:`torchrl_ahrs.app.iteration.train` with ``task=ant_v5 method=<ppo|hdppo>`` (EnvPool's Ant-v5
   behind our batched env, reward components, K-head critic, WeightedMultiGAE, TorchRL Trainer + hooks,
   CSV + TensorBoard logging), exactly as ``python -m torchrl_ahrs.train`` runs it.
 - ``reference``: the pipeline TorchRL's ``sota-implementations/ppo`` builds for MuJoCo, written here
@@ -138,14 +138,14 @@ def rates(stamps: list[tuple[float, float]], frames_per_batch: int, warmup: int)
 
 
 def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[float, float]:
-    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.train.train`` on task=ant_v5 after ``args.warmup`` batches.
+    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.app.iteration.train`` on task=ant_v5 after ``args.warmup`` batches.
 
     The only instrumentation is a :class:`TimedCollector` around the collector ``train`` builds.
     """
-    import torchrl_ahrs.train as training
+    import torchrl_ahrs.app.iteration as training
 
     timed: list[TimedCollector] = []
-    build_collector = training.make_collector
+    build_collector = training.build_collector
 
     def make_timed_collector(*a, **kw):
         timed.append(TimedCollector(build_collector(*a, **kw)))
@@ -157,9 +157,9 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
         f"seed={args.seed}",
         f"trainer.total_frames={total_frames}",
         f"trainer.num_envs={args.num_envs}",
-        f"trainer.rollout_steps={args.rollout_steps}",
+        f"trainer.frames_per_batch={args.num_envs * args.rollout_steps}",
         f"trainer.num_epochs={args.epochs}",
-        f"trainer.num_minibatches={args.minibatches}",
+        f"trainer.mini_batch_size={args.num_envs * args.rollout_steps // args.minibatches}",
         f"model.hidden_sizes=[{','.join(map(str, args.hidden))}]",
         "trainer.progress_bar=false",
         "checkpoint.interval=0",
@@ -167,12 +167,12 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
     ]
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
-    training.make_collector = make_timed_collector
+    training.build_collector = make_timed_collector
     try:
         with tempfile.TemporaryDirectory() as run_dir:
             training.train(cfg, Path(run_dir))
     finally:
-        training.make_collector = build_collector
+        training.build_collector = build_collector
     return rates(timed[0].stamps[:-1], args.num_envs * args.rollout_steps, args.warmup)
 
 

@@ -13,28 +13,28 @@ from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.config import ConfigError, resolve_components, validate_config
+from torchrl_ahrs.app.auxiliary import collect_aux_inputs, validate_aux_file
+from torchrl_ahrs.app.config import ConfigError, resolve_components, validate_config
 from torchrl_ahrs.envs.registry import available_tasks, load_task_config, make_env
-from torchrl_ahrs.llm.sandbox import check_source
-from torchrl_ahrs.llm.sandbox_worker import validate as validate_in_process
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
     TOTAL_AUX,
     AuxiliaryReward,
     aux_inputs,
-    collect_aux_inputs,
     file_digest,
     load_aux_function,
     shipped_aux_path,
-    validate_aux_file,
 )
+from torchrl_ahrs.sandbox import check_source
+from torchrl_ahrs.sandbox import validate as validate_in_process
 from torchrl_ahrs.train import train
 
 FAST = [
     "task=point_reach",
     "trainer.total_frames=2048",
     "trainer.num_envs=16",
-    "trainer.rollout_steps=32",
+    "trainer.frames_per_batch=512",
+    "trainer.mini_batch_size=128",
     "trainer.num_epochs=2",
     "trainer.progress_bar=false",
     "scheduler.interval=1",
@@ -105,8 +105,13 @@ def test_cassie_aux_pays_for_an_upright_pelvis():
 
 def test_transform_writes_aux_and_total_aux_next_to_the_native_reward():
     path = shipped_aux_path("point_reach")
-    task = task_dict("point_reach", auxiliary={"path": str(path), "digest": file_digest(path), "scale": 2.0})
-    env = make_env(task, num_envs=4, seed=0, components=["distance", "arrival", "ctrl", AUX])
+    env = make_env(
+        task_dict("point_reach"),
+        num_envs=4,
+        seed=0,
+        components=["distance", "arrival", "ctrl", AUX],
+        transforms=[lambda: AuxiliaryReward.from_file(path, scale=2.0, expected_digest=file_digest(path))],
+    )
     check_env_specs(env)
     spec = env.full_reward_spec["reward"]
     assert {AUX, TOTAL_AUX} <= set(spec.keys())
@@ -220,8 +225,8 @@ def test_endless_loop_is_stopped_by_the_cpu_limit_in_the_child(tmp_path):
     path = tmp_path / "aux.py"
     path.write_text(
         HEAD
-        + "    x = obs['reward.total']\n    for i in range(10000):\n        for j in range(10000):\n"
-        + "            x = x + 1.0\n    return x\n"
+        + "    x = obs['reward.total']\n    m = torch.rand(300, 300)\n    for i in range(100000):\n"
+        + "        m = torch.tanh(m @ m)\n    return x + m.sum()\n"  # heavy steps: the CPU limit, not the loop budget
     )
     verdict = validate_aux_file(path, task_dict("point_reach"), num_envs=2, steps=2)
     assert not verdict.ok and "CPU-time limit" in " ".join(verdict.reasons)
@@ -298,7 +303,8 @@ def test_cassie_cli_logs_k_plus_one_returns_and_weights(tmp_path):
             "method=ahrs",
             "trainer.total_frames=4096",
             "trainer.num_envs=16",
-            "trainer.rollout_steps=64",
+            "trainer.frames_per_batch=1024",
+            "trainer.mini_batch_size=256",
             "trainer.progress_bar=false",
             "scheduler.interval=1",
             "task.episode_length_s=0.5",

@@ -12,10 +12,15 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.envs import legged_rewards as lr
-from torchrl_ahrs.envs.cassie import make_cassie
-from torchrl_ahrs.envs.cassie_model import JOINT_NAMES, canonical_joint_name, default_model_path, load_cassie_model
+from torchrl_ahrs.envs.common import legged_rewards as lr
 from torchrl_ahrs.envs.registry import load_task_config, make_env
+from torchrl_ahrs.envs.tasks.cassie import make_cassie
+from torchrl_ahrs.envs.tasks.cassie_model import (
+    JOINT_NAMES,
+    canonical_joint_name,
+    default_model_path,
+    load_cassie_model,
+)
 
 MENAGERIE_SCENE = Path("/work/shared/models/agility_cassie/scene.xml")
 needs_menagerie = pytest.mark.skipif(not MENAGERIE_SCENE.exists(), reason="Menagerie's Cassie is not on this machine")

@@ -13,7 +13,7 @@ from torchrl.envs.utils import check_env_specs
 
 pytest.importorskip("envpool")
 
-from torchrl_ahrs.envs.envpool import EnvPoolEnv  # noqa: E402
+from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv  # noqa: E402
 from torchrl_ahrs.envs.registry import load_task_config, make_env  # noqa: E402
 
 ANT_TERMS = ("reward_forward", "reward_ctrl", "reward_contact", "reward_survive")

@@ -62,7 +62,7 @@ def test_shadow_hand_terms_against_native_reward():
 
 
 def test_quat_angle_known_rotations():
-    from torchrl_ahrs.envs.shadow_hand import quat_angle
+    from torchrl_ahrs.envs.tasks.shadow_hand import quat_angle
 
     identity = torch.tensor([1.0, 0.0, 0.0, 0.0])
     half_turn_z = torch.tensor([0.0, 0.0, 0.0, 1.0])
@@ -93,7 +93,7 @@ def test_walker_stand_terms_match_dm_control_when_move_factor_is_zero():
     # factor is 0 and r = stand / 6: our observation-based standing + upright must equal r, move ~ 0
     np = pytest.importorskip("numpy")
     suite = pytest.importorskip("dm_control.suite")
-    from torchrl_ahrs.envs.dmc_tasks import walker_walk_terms
+    from torchrl_ahrs.envs.tasks.dmc_tasks import walker_walk_terms
 
     env = suite.load("walker", "walk", task_kwargs={"random": 0})
     env.physics.horizontal_velocity = lambda: -100.0

@@ -15,9 +15,9 @@ import torch
 from hydra import compose, initialize_config_module
 from PIL import Image
 
-from torchrl_ahrs.config import save_config
+from torchrl_ahrs.app.config import save_config
+from torchrl_ahrs.app.policy import EvaluationError, load_policy
 from torchrl_ahrs.evaluate import evaluate
-from torchrl_ahrs.evaluation.policy import EvaluationError, load_policy
 from torchrl_ahrs.train import train
 
 TINY_RUN = [
@@ -25,7 +25,8 @@ TINY_RUN = [
     "method=hdppo",
     "trainer.total_frames=4096",
     "trainer.num_envs=32",
-    "trainer.rollout_steps=32",
+    "trainer.frames_per_batch=1024",
+    "trainer.mini_batch_size=256",
     "trainer.num_epochs=2",
     "trainer.progress_bar=false",
     "model.hidden_sizes=[32,32]",
@@ -111,11 +112,11 @@ def test_training_video_hook_writes_gif_and_tensorboard_video(trained_run):
     script = (
         "from torchrl_ahrs.evaluation.render import select_gl_backend; select_gl_backend()\n"
         "import sys\n"
-        "from torchrl_ahrs.evaluation.policy import load_policy\n"
-        "from torchrl_ahrs.training.video import VideoLog\n"
+        "from torchrl_ahrs.app.policy import load_policy\n"
+        "from torchrl_ahrs.app.video import VideoLog\n"
         "from tensorboard.backend.event_processing.event_accumulator import EventAccumulator\n"
         f"policy = load_policy({str(trained_run)!r})\n"
-        f"hook = VideoLog(policy.task, policy.components, policy.actor, {str(trained_run)!r}, interval=2, "
+        f"hook = VideoLog(policy.make_envs, policy.actor, {str(trained_run)!r}, interval=2, "
         "num_frames=6, width=48, height=32)\n"
         "for _ in range(4): hook()\n"
         "print(sorted(path.name for path in hook.logger.written))\n"

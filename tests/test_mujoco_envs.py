@@ -9,10 +9,10 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.envs.ant import AntEnv
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv
-from torchrl_ahrs.envs.quadcopter import QuadcopterEnv
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
 from torchrl_ahrs.envs.registry import load_task_config, make_env
+from torchrl_ahrs.envs.tasks.ant import AntEnv
+from torchrl_ahrs.envs.tasks.quadcopter import QuadcopterEnv
 
 SLIDER_XML = """
 <mujoco>
@@ -277,7 +277,7 @@ def test_quadcopter_hover_thrust_holds_altitude():
 def test_ant_v5_on_the_base_matches_gymnasium_step_for_step():
     # differential oracle: gymnasium's own Ant-v5 from the same state under the same actions
     gym = pytest.importorskip("gymnasium")
-    from torchrl_ahrs.envs.ant_v5_mujoco import AntV5Mujoco
+    from torchrl_ahrs.envs.tasks.ant_v5_mujoco import AntV5Mujoco
 
     ours = AntV5Mujoco(num_envs=2, num_threads=2, seed=5)
     td = ours.reset()

@@ -43,7 +43,7 @@ def make_run(root, method, seed, final=None, checkpoint_frames=BUDGET, component
     for component, value in components:
         (scalars / "return" / f"{component}.csv").write_text(f"960,{value}\n")
     if checkpoint_frames is not None:
-        torch.save({"collected_frames": checkpoint_frames}, run_dir / "checkpoint.pt")
+        torch.save({"state": {"collected_frames": checkpoint_frames}}, run_dir / "checkpoint.pt")
     for name, lines in files.items():
         (run_dir / f"{name}.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
     return run_dir

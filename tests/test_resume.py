@@ -10,7 +10,7 @@ import time
 import pytest
 import torch
 
-from torchrl_ahrs.training.checkpoint import CHECKPOINT_FILE
+from torchrl_ahrs.app.checkpoint import CHECKPOINT_FILE
 
 FRAMES_PER_BATCH = 16 * 32
 ITERATIONS = 14
@@ -20,7 +20,8 @@ ARGS = [
     "method=hdppo",
     f"trainer.total_frames={ITERATIONS * FRAMES_PER_BATCH}",
     "trainer.num_envs=16",
-    "trainer.rollout_steps=32",
+    "trainer.frames_per_batch=512",
+    "trainer.mini_batch_size=128",
     "trainer.num_epochs=2",
     "trainer.progress_bar=false",
     "model.hidden_sizes=[32]",
@@ -31,7 +32,7 @@ ARGS = [
 
 def checkpoint_iteration(run_dir):
     try:
-        return torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)["iteration"]
+        return torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)["checkpoint"]["iteration"]
     except (FileNotFoundError, EOFError, RuntimeError):
         return 0
 
@@ -56,7 +57,7 @@ def test_sigkill_then_resume_continues_exactly(tmp_path):
     os.kill(first.pid, signal.SIGKILL)
     first.wait()
     killed_at = torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)
-    assert 6 <= killed_at["iteration"] < ITERATIONS
+    assert 6 <= killed_at["checkpoint"]["iteration"] < ITERATIONS
 
     resumed = subprocess.run(
         [sys.executable, "-m", "torchrl_ahrs.train", f"resume={run_dir}", f"hydra.run.dir={tmp_path / 'resume'}"],
@@ -67,10 +68,10 @@ def test_sigkill_then_resume_continues_exactly(tmp_path):
     )
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     final = torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)
-    assert final["collected_frames"] == ITERATIONS * FRAMES_PER_BATCH
-    assert final["iteration"] == ITERATIONS
-    assert final["scheduler"]["iteration"] == ITERATIONS
-    assert final["scheduler"]["decision_index"] >= killed_at["scheduler"]["decision_index"]
+    assert final["state"]["collected_frames"] == ITERATIONS * FRAMES_PER_BATCH
+    assert final["checkpoint"]["iteration"] == ITERATIONS
+    assert final["rule_scheduler"]["iteration"] == ITERATIONS
+    assert final["rule_scheduler"]["decision_index"] >= killed_at["rule_scheduler"]["decision_index"]
 
     # every iteration logged its weights exactly once, in order, before and after the kill
     expected_steps = [FRAMES_PER_BATCH * (i + 1) for i in range(ITERATIONS)]

@@ -17,8 +17,8 @@ import uuid
 import pytest
 from hydra import compose, initialize_config_module
 
+from torchrl_ahrs.app.redaction import RedactHydraOutput, is_secret_key, secret_values
 from torchrl_ahrs.llm.client import CALLS_FILE, LLMClient, LLMConfig
-from torchrl_ahrs.redaction import RedactHydraOutput, is_secret_key, secret_values
 
 
 def fake_key(label):
@@ -58,7 +58,8 @@ def test_keys_from_environment_and_config_never_reach_run_dir_or_console(llm_ser
         "task.max_episode_steps=20",
         "trainer.total_frames=2048",
         "trainer.num_envs=32",
-        "trainer.rollout_steps=32",
+        "trainer.frames_per_batch=1024",
+        "trainer.mini_batch_size=256",
         "trainer.num_epochs=1",
         "trainer.progress_bar=false",
         "model.hidden_sizes=[32,32]",
@@ -104,9 +105,9 @@ def test_hydra_output_is_registered_for_redaction():
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", return_hydra_config=True)
     targets = [callback.get("_target_") for callback in (cfg.hydra.callbacks or {}).values()]
-    assert "torchrl_ahrs.redaction.RedactHydraOutput" in targets, (
+    assert "torchrl_ahrs.app.redaction.RedactHydraOutput" in targets, (
         "conf/config.yaml must register hydra.callbacks.redact_secrets._target_: "
-        "torchrl_ahrs.redaction.RedactHydraOutput, or .hydra/ keeps llm.api_key=... verbatim"
+        "torchrl_ahrs.app.redaction.RedactHydraOutput, or .hydra/ keeps llm.api_key=... verbatim"
     )
     assert RedactHydraOutput  # importable by Hydra's instantiate
 

@@ -9,12 +9,13 @@ import pytest
 import torch
 from hydra import compose, initialize_config_module
 
-from torchrl_ahrs.config import ConfigError, validate_config
+from torchrl_ahrs.app.config import ConfigError, validate_config
 from torchrl_ahrs.train import train
 
 FAST = [
     "trainer.num_envs=32",
-    "trainer.rollout_steps=32",
+    "trainer.frames_per_batch=1024",
+    "trainer.mini_batch_size=256",
     "trainer.num_epochs=10",
     "trainer.lr=1e-3",
     "trainer.progress_bar=false",
@@ -173,15 +174,17 @@ def test_asymmetric_critic_reads_the_privileged_state(tmp_path):
         "task.critic_observation=privileged_state",
         "method=hdppo",
         "trainer.num_envs=4",
-        "trainer.rollout_steps=16",
+        "trainer.frames_per_batch=64",
         "trainer.total_frames=128",
-        "trainer.num_minibatches=2",
+        "trainer.mini_batch_size=32",
         "trainer.progress_bar=false",
         "model.hidden_sizes=[16]",
     )
     train(cfg, tmp_path)
     checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
-    critic_norm_means = [value for key, value in checkpoint["critic"].items() if key.endswith("mean")]
+    # the loss holds the critic as a module (functional=False): its entries are critic_network.*
+    critic = {key: value for key, value in checkpoint["loss_module"].items() if key.startswith("critic_network")}
+    critic_norm_means = [value for key, value in critic.items() if key.endswith("mean")]
     first_actor_layer = next(value for key, value in checkpoint["actor"].items() if key.endswith("weight"))
     assert critic_norm_means[0].shape == (123,)  # MuJoCo Playground's privileged state
     assert first_actor_layer.shape[-1] == 48  # the policy still sees only the proprioceptive state

@@ -29,9 +29,9 @@ select_gl_backend()  # MUJOCO_GL is read when mujoco is first imported, which th
 import hydra  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
+from torchrl_ahrs.app.policy import EvaluationError, load_policy  # noqa: E402
 from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 from torchrl_ahrs.evaluation.episodes import record_frames, run_episodes, summarize  # noqa: E402
-from torchrl_ahrs.evaluation.policy import EvaluationError, load_policy  # noqa: E402
 from torchrl_ahrs.evaluation.render import RenderUnavailable, base_env, make_frame_source, write_clip  # noqa: E402
 from torchrl_ahrs.evaluation.task_metrics import episode_metrics, step_probe  # noqa: E402
 from torchrl_ahrs.rewards.components import TOTAL  # noqa: E402
@@ -53,13 +53,13 @@ def evaluate(
         >>> evaluate("/nonexistent")
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.evaluation.policy.EvaluationError: no run directory at /nonexistent
+        torchrl_ahrs.app.policy.EvaluationError: no run directory at /nonexistent
     """
     if episodes < 1:
         raise EvaluationError(f"episodes must be a positive integer, got {episodes}")
     policy = load_policy(run_dir)
     reported = _reported_components(policy.components, policy.task["components"])
-    env = make_env(policy.task, episodes, seed, components=reported)
+    env = make_env(policy.task, episodes, seed, components=reported, transforms=policy.make_envs.transforms)
     try:
         results = run_episodes(env, policy.actor, reported, deterministic, step_probe(policy.task["name"]))
     finally:
@@ -100,7 +100,7 @@ def render_clip(
     if video_format not in ("gif", "mp4"):
         raise EvaluationError(f"video_format must be gif or mp4, got {video_format!r}")
     policy = load_policy(run_dir)
-    env = make_env(policy.task, 1, seed, components=policy.components)
+    env = policy.make_envs(1, seed)
     try:
         frame_source = make_frame_source(env, width, height)
         print(f"rendering with {frame_source.description}")

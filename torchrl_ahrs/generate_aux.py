@@ -25,30 +25,34 @@ from typing import Any
 import torch
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.app.auxiliary import collect_aux_inputs
 from torchrl_ahrs.generate_rules import extract_code_blocks
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
 from torchrl_ahrs.llm.generation import generation_output_dir
-from torchrl_ahrs.llm.sandbox import check_source, validate_in_child
-from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, collect_aux_inputs, load_aux_function
+from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, load_aux_function
+from torchrl_ahrs.sandbox import check_source, validate_in_child
 
 # The Python that computes each task's reward terms ("module:qualified name"); tasks whose terms come
 # from EnvPool's C++ have none and the prompt says so.
 REWARD_SOURCES: dict[str, list[str]] = {
-    "point_reach": ["torchrl_ahrs.envs.point_reach:PointReachEnv.reward_terms"],
-    "quadcopter": ["torchrl_ahrs.envs.quadcopter:quadcopter_reward_terms"],
-    "ant": ["torchrl_ahrs.envs.ant:ant_reward_terms"],
-    "cassie": ["torchrl_ahrs.envs.legged_rewards", "torchrl_ahrs.envs.cassie:CassieEnv.after_physics_step"],
-    "shadow_hand": ["torchrl_ahrs.envs.shadow_hand:shadow_hand_terms"],
-    "dmc_walker_walk": ["torchrl_ahrs.envs.dmc_tasks:walker_walk_terms"],
-    "dmc_quadruped_run": ["torchrl_ahrs.envs.dmc_tasks:quadruped_run_terms"],
-    "dmc_cheetah_run": ["torchrl_ahrs.envs.dmc_tasks:cheetah_run_terms"],
+    "point_reach": ["torchrl_ahrs.envs.tasks.point_reach:PointReachEnv.reward_terms"],
+    "quadcopter": ["torchrl_ahrs.envs.tasks.quadcopter:quadcopter_reward_terms"],
+    "ant": ["torchrl_ahrs.envs.tasks.ant:ant_reward_terms"],
+    "cassie": [
+        "torchrl_ahrs.envs.common.legged_rewards",
+        "torchrl_ahrs.envs.tasks.cassie:CassieEnv.after_physics_step",
+    ],
+    "shadow_hand": ["torchrl_ahrs.envs.tasks.shadow_hand:shadow_hand_terms"],
+    "dmc_walker_walk": ["torchrl_ahrs.envs.tasks.dmc_tasks:walker_walk_terms"],
+    "dmc_quadruped_run": ["torchrl_ahrs.envs.tasks.dmc_tasks:quadruped_run_terms"],
+    "dmc_cheetah_run": ["torchrl_ahrs.envs.tasks.dmc_tasks:cheetah_run_terms"],
 }
 OBSERVATION_SOURCES: dict[str, str] = {
-    "point_reach": "torchrl_ahrs.envs.point_reach:PointReachEnv.observation",
-    "quadcopter": "torchrl_ahrs.envs.quadcopter:QuadcopterEnv.observation",
-    "ant": "torchrl_ahrs.envs.ant:AntEnv.observation",
-    "cassie": "torchrl_ahrs.envs.cassie:CassieEnv.observation",
+    "point_reach": "torchrl_ahrs.envs.tasks.point_reach:PointReachEnv.observation",
+    "quadcopter": "torchrl_ahrs.envs.tasks.quadcopter:QuadcopterEnv.observation",
+    "ant": "torchrl_ahrs.envs.tasks.ant:AntEnv.observation",
+    "cassie": "torchrl_ahrs.envs.tasks.cassie:CassieEnv.observation",
 }
 
 

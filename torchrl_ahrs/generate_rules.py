@@ -26,7 +26,7 @@ from omegaconf import OmegaConf
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, prompt_hash
 from torchrl_ahrs.llm.generation import generation_output_dir
 from torchrl_ahrs.llm.prompts import rule_generation_prompt
-from torchrl_ahrs.llm.sandbox import check_source, validate_in_child
+from torchrl_ahrs.sandbox import check_source, validate_in_child
 from torchrl_ahrs.scheduling.rules import DEFAULT_REPOSITORY, RULE_ARITY, load_repository
 
 _CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)

@@ -12,27 +12,27 @@ import importlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from torchrl.envs import EnvBase, RewardSum, TransformedEnv
+from torchrl.envs import EnvBase, RewardSum, Transform, TransformedEnv
 
-from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX, maybe_add_auxiliary
+from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
 from torchrl_ahrs.rewards.components import TOTAL, component_reward_keys, episode_return_keys
 
 TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
 
 # name -> "module:function"; imported on first use so that optional backends load only when asked.
 _BUILDERS: dict[str, str] = {
-    "ant_v5": "torchrl_ahrs.envs.envpool_tasks:make_ant_v5",
-    "go1_terrain": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
-    "leap_cube": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
-    "humanoid": "torchrl_ahrs.envs.envpool_tasks:make_info_terms_task",
-    "shadow_hand": "torchrl_ahrs.envs.shadow_hand:make_shadow_hand",
-    "dmc_walker_walk": "torchrl_ahrs.envs.dmc_tasks:make_dmc_task",
-    "dmc_quadruped_run": "torchrl_ahrs.envs.dmc_tasks:make_dmc_task",
-    "dmc_cheetah_run": "torchrl_ahrs.envs.dmc_tasks:make_dmc_task",
-    "ant": "torchrl_ahrs.envs.ant:make_ant",
-    "quadcopter": "torchrl_ahrs.envs.quadcopter:make_quadcopter",
-    "cassie": "torchrl_ahrs.envs.cassie:make_cassie",
-    "point_reach": "torchrl_ahrs.envs.point_reach:make_point_reach",
+    "ant_v5": "torchrl_ahrs.envs.tasks.envpool_tasks:make_ant_v5",
+    "go1_terrain": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
+    "leap_cube": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
+    "humanoid": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
+    "shadow_hand": "torchrl_ahrs.envs.tasks.shadow_hand:make_shadow_hand",
+    "dmc_walker_walk": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
+    "dmc_quadruped_run": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
+    "dmc_cheetah_run": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
+    "ant": "torchrl_ahrs.envs.tasks.ant:make_ant",
+    "quadcopter": "torchrl_ahrs.envs.tasks.quadcopter:make_quadcopter",
+    "cassie": "torchrl_ahrs.envs.tasks.cassie:make_cassie",
+    "point_reach": "torchrl_ahrs.envs.tasks.point_reach:make_point_reach",
 }
 
 
@@ -63,6 +63,7 @@ def make_env(
     seed: int = 0,
     device: str = "cpu",
     components: Sequence[str] | None = None,
+    transforms: Sequence[Callable[[], Transform]] = (),
 ) -> TransformedEnv:
     """Builds the task and tracks each component's episode return.
 
@@ -72,8 +73,9 @@ def make_env(
         seed: environment seed.
         components: the reward leaves that form the K axis; default ``task_cfg["components"]``.
             ``["total"]`` gives plain PPO's single head.
-            An ``auxiliary`` entry in ``task_cfg`` (``{"path", "digest", "scale"}``, see
-            :func:`torchrl_ahrs.rewards.auxiliary.task_with_auxiliary`) appends the auxiliary reward.
+        transforms: factories (zero-argument callables, picklable for collector workers) of transforms
+            appended after the task's own, before the episode returns are tracked — e.g. the
+            :class:`~torchrl_ahrs.rewards.auxiliary.AuxiliaryReward` that writes ``("reward", "aux")``.
 
     Returns:
         A ``TransformedEnv`` with batch size ``[N]`` whose ``next`` tensordict holds
@@ -90,13 +92,15 @@ def make_env(
     components = list(components if components is not None else task_cfg["components"])
     tracked = components + ([TOTAL] if TOTAL not in components else [])
     env = get_builder(task_cfg["name"])(task_cfg, num_envs, seed, device)
-    if task_cfg.get("auxiliary"):  # ("reward", "aux") and ("reward", "total_aux") from sandboxed code
-        env = maybe_add_auxiliary(env if isinstance(env, TransformedEnv) else TransformedEnv(env), task_cfg)
+    if transforms and not isinstance(env, TransformedEnv):
+        env = TransformedEnv(env)
+    for make_transform in transforms:
+        env.append_transform(make_transform())
     missing = [key for key in component_reward_keys(tracked) if key not in env.full_reward_spec.keys(True, True)]
     if missing and any(key[-1] in (AUX, TOTAL_AUX) for key in missing):
         raise ValueError(
-            f"components {components} name the auxiliary reward but the task config has no 'auxiliary' entry; "
-            "build it with torchrl_ahrs.rewards.auxiliary.task_with_auxiliary(cfg)"
+            f"components {components} name the auxiliary reward but no AuxiliaryReward transform was given; "
+            "pass transforms=[lambda: AuxiliaryReward.from_file(path)]"
         )
     if missing:
         raise ValueError(f"task {task_cfg['name']!r} does not write the reward leaves {missing}")

@@ -2,7 +2,7 @@
 
 Two frame sources, picked from the env's innermost (base) environment by :func:`make_frame_source`:
 
-* :class:`TrackingCamera` — our own MuJoCo tasks (:class:`~torchrl_ahrs.envs.mujoco_base.BatchedMujocoEnv`:
+* :class:`TrackingCamera` — our own MuJoCo tasks (:class:`~torchrl_ahrs.envs.backends.mujoco_base.BatchedMujocoEnv`:
   point_reach, ant, quadcopter, cassie): ``mujoco.Renderer`` draws ``env.model`` with one env's ``MjData``
   through a camera that follows the robot's root body.
 * :class:`EnvPoolCamera` — EnvPool's MuJoCo tasks (ant_v5, humanoid, go1_terrain, leap_cube, shadow_hand,
@@ -88,7 +88,7 @@ class TrackingCamera:
         distance: camera distance as a multiple of the model's extent (``model.stat.extent``).
 
     Example:
-        >>> from torchrl_ahrs.envs.point_reach import PointReachEnv
+        >>> from torchrl_ahrs.envs.tasks.point_reach import PointReachEnv
         >>> camera = TrackingCamera(PointReachEnv(num_envs=2), 64, 48)  # doctest: +SKIP
         >>> camera().shape  # doctest: +SKIP
         (48, 64, 3)
@@ -124,7 +124,7 @@ class TrackingCamera:
 
 
 class EnvPoolCamera:
-    """Renders env ``env_index`` of an :class:`~torchrl_ahrs.envs.envpool.EnvPoolEnv` with EnvPool's renderer.
+    """Renders env ``env_index`` of an :class:`~torchrl_ahrs.envs.backends.envpool.EnvPoolEnv` with EnvPool's renderer.
 
     EnvPool 1.2.5 renders MuJoCo tasks only into a GL context current in the calling thread, and only
     in ``rgb_array`` mode; the mode is set on the live pool before each frame because ``set_seed``
@@ -159,8 +159,8 @@ def base_env(env: EnvBase) -> EnvBase:
 def make_frame_source(env: EnvBase, width: int, height: int, env_index: int = 0):
     """A callable returning frames ``[H, W, 3]`` uint8 of ``env``'s env ``env_index``; raises
     :class:`RenderUnavailable` (with the reason) for tasks that cannot render."""
-    from torchrl_ahrs.envs.envpool import EnvPoolEnv
-    from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv
+    from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv
+    from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
 
     inner = base_env(env)
     if isinstance(inner, BatchedMujocoEnv):

@@ -24,7 +24,7 @@ StepProbe = Callable[[EnvBase], dict[str, torch.Tensor]]
 
 
 def cassie_tracking_errors(env) -> dict[str, torch.Tensor]:
-    """Velocity-command tracking errors ``[N]`` of a :class:`~torchrl_ahrs.envs.cassie.CassieEnv`."""
+    """Velocity-command tracking errors ``[N]`` of a :class:`~torchrl_ahrs.envs.tasks.cassie.CassieEnv`."""
     lin_vel, ang_vel = env._base_velocities()  # base-frame [N, 3] each, the same read-out the reward uses
     return {
         "lin_vel_error": torch.linalg.vector_norm(env.commands[:, :2] - lin_vel[:, :2], dim=-1),  # ‖c_xy − v_xy‖

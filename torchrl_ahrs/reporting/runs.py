@@ -143,7 +143,7 @@ def load_run(path: Path) -> Run:
     if checkpoint.is_file():
         try:
             state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-            run.collected_frames = int(state.get("collected_frames", 0))
+            run.collected_frames = int(state["state"]["collected_frames"])
         except Exception as error:  # a torn or foreign file: the run cannot be trusted
             run.status, run.reason = "incomplete", f"unreadable checkpoint ({type(error).__name__})"
             return run

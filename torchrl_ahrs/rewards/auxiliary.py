@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -118,7 +118,7 @@ def load_aux_function(path: str | Path, expected_digest: str | None = None) -> A
         ValueError: the sandbox refuses the code, the function is missing, or the file changed since it
             was validated (``expected_digest``).
     """
-    from torchrl_ahrs.llm.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
+    from torchrl_ahrs.sandbox import load_functions  # the sandbox imports torch, numpy: keep it lazy
 
     path = Path(path)
     source = path.read_bytes()
@@ -203,159 +203,3 @@ class AuxiliaryReward(Transform):
         for name in (AUX, TOTAL_AUX):
             tree[name] = Unbounded(shape=native.shape, dtype=torch.float32, device=native.device)
         return reward_spec
-
-
-# ----------------------------------------------------------------------------------------------------
-# Config glue: which components a method trains on, which file, validation at start
-# ----------------------------------------------------------------------------------------------------
-
-AUX_MODES = (None, "branch", "total")
-
-
-def auxiliary_components(
-    method_components: Sequence[str] | None, task_components: Sequence[str], auxiliary: str | None
-) -> list[str]:
-    """The K axis of a method: its own list, else the task's (+ ``aux`` for ``branch``, ``[total_aux]`` for ``total``).
-
-    Example:
-        >>> auxiliary_components(None, ["a", "b"], "branch"), auxiliary_components(None, ["a", "b"], "total")
-        (['a', 'b', 'aux'], ['total_aux'])
-    """
-    if auxiliary not in AUX_MODES:
-        raise ValueError(f"method.auxiliary must be null, 'branch' or 'total', got {auxiliary!r}")
-    if method_components is not None:
-        return list(method_components)
-    if auxiliary == "branch":
-        return [*task_components, AUX]
-    if auxiliary == "total":
-        return [TOTAL_AUX]
-    return list(task_components)
-
-
-def aux_leaves(auxiliary: str | None) -> set[str]:
-    """Reward leaves a method may name in addition to the task's components."""
-    return {AUX, TOTAL_AUX} if auxiliary else set()
-
-
-def _select(cfg: Any, key: str, default: Any = None) -> Any:
-    node = cfg
-    for part in key.split("."):
-        if node is None or not hasattr(node, "get"):
-            return default
-        node = node.get(part)
-    return default if node is None else node
-
-
-def resolve_aux_path(cfg: Any) -> Path:
-    """``aux.path`` if given, else the task's shipped auxiliary reward."""
-    path = _select(cfg, "aux.path")
-    return Path(path) if path else shipped_aux_path(cfg.task.name)
-
-
-def collect_aux_inputs(
-    task_cfg: Mapping[str, Any], num_envs: int = 8, steps: int = 16, seed: int = 0
-) -> dict[str, torch.Tensor]:
-    """``obs`` dicts of ``num_envs · steps`` real transitions of the task under uniformly random actions."""
-    from torchrl_ahrs.envs.registry import make_env
-
-    task = {key: value for key, value in task_cfg.items() if key != "auxiliary"}
-    env = make_env(task, num_envs, seed)
-    try:
-        with torch.no_grad():
-            rollout = env.rollout(steps, break_when_any_done=False)  # [N, T]
-    finally:
-        env.close()
-    inputs = aux_inputs(rollout.get("action"), rollout.get("next"))
-    return flatten_inputs(inputs, rollout.batch_dims)
-
-
-def validate_aux_file(
-    path: str | Path, task_cfg: Mapping[str, Any], num_envs: int = 8, steps: int = 16, seed: int = 0
-) -> Any:
-    """All sandbox gates for an auxiliary reward file, the child run on real transitions of the task.
-
-    Returns the sandbox's ``Verdict`` (``ok``, ``reasons``).
-    """
-    import tempfile
-
-    from torchrl_ahrs.llm.sandbox import Verdict, check_source, validate_in_child
-
-    path = Path(path)
-    try:
-        source = path.read_text()
-    except (OSError, UnicodeDecodeError) as error:
-        return Verdict(False, [f"cannot read {path}: {error}"])
-    verdict = check_source(source, str(path))
-    if not verdict.ok:
-        return verdict
-    if AUX_FUNCTION not in verdict.functions:
-        return Verdict(False, [f"no function named {AUX_FUNCTION}(obs); found {verdict.functions}"])
-    inputs = collect_aux_inputs(task_cfg, num_envs, steps, seed)
-    with tempfile.TemporaryDirectory() as scratch:
-        inputs_path = Path(scratch) / "inputs.pt"
-        torch.save(inputs, inputs_path)
-        return validate_in_child(path, "aux", inputs_path=inputs_path)
-
-
-def infer_aux_task(path: str | Path) -> str | None:
-    """The task an auxiliary reward file was written for: ``generate_aux``'s header ("... for task <name>.")
-    or a shipped file's name; None when neither says."""
-    import re
-
-    from torchrl_ahrs.envs.registry import available_tasks
-
-    path = Path(path)
-    try:
-        match = re.search(r"for task ([A-Za-z0-9_]+)\.", path.read_text()[:2000])
-    except (OSError, UnicodeDecodeError):
-        return None
-    if match and match.group(1) in available_tasks():
-        return match.group(1)
-    return path.stem if path.stem in available_tasks() else None
-
-
-def task_with_auxiliary(cfg: Any, check: bool = True) -> dict[str, Any]:
-    """The task config as a plain dict; when the method uses the auxiliary reward, with an ``auxiliary`` entry.
-
-    ``auxiliary = {"path", "digest", "scale"}`` tells :func:`maybe_add_auxiliary` (called by ``make_env``)
-    to append :class:`AuxiliaryReward`. With ``check`` the file goes through every sandbox gate on real
-    transitions of the task first, and the run logs which file and digest it uses.
-
-    Raises:
-        torchrl_ahrs.config.ConfigError: the file is missing or refused (every reason in the message).
-    """
-    from omegaconf import OmegaConf
-
-    from torchrl_ahrs.config import ConfigError
-
-    task = OmegaConf.to_container(cfg.task, resolve=True)
-    mode = _select(cfg, "method.auxiliary")
-    if not mode:
-        return task
-    try:
-        path = resolve_aux_path(cfg)
-    except FileNotFoundError as error:
-        raise ConfigError(str(error)) from error
-    if not path.is_file():
-        raise ConfigError(f"aux.path: no file {path}")
-    digest = file_digest(path)
-    if check:
-        verdict = validate_aux_file(path, task, seed=int(_select(cfg, "seed", 0)))
-        if not verdict.ok:
-            raise ConfigError(
-                f"auxiliary reward {path} refused by the sandbox; training not started:\n  - "
-                + "\n  - ".join(verdict.reasons)
-            )
-        log.info(
-            "auxiliary reward: %s (sha256 %s), mode %s, scale %s", path, digest, mode, _select(cfg, "aux.scale", 1.0)
-        )
-    task["auxiliary"] = {"path": str(path), "digest": digest, "scale": float(_select(cfg, "aux.scale", 1.0))}
-    return task
-
-
-def maybe_add_auxiliary(env: Any, task_cfg: Mapping[str, Any]) -> Any:
-    """Appends :class:`AuxiliaryReward` to ``env`` (a ``TransformedEnv``) when ``task_cfg`` has an ``auxiliary`` entry."""
-    spec = task_cfg.get("auxiliary")
-    if spec:
-        env.append_transform(AuxiliaryReward.from_file(spec["path"], spec.get("scale", 1.0), spec.get("digest")))
-    return env

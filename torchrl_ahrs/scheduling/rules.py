@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from torchrl_ahrs.llm.sandbox import check_file, load_functions
+from torchrl_ahrs.sandbox import check_file, load_functions
 
 DEFAULT_REPOSITORY = Path(__file__).with_name("default_rules.py")
 RULE_ARITY = 4
@@ -192,20 +192,25 @@ def rules_from_source(source: str, filename: str = "<rules>") -> list[Rule]:
     return rules
 
 
-def load_repository(path: str | Path | None = None, validate: bool = False) -> RuleRepository:
+def load_repository(
+    path: str | Path | None = None, validate: bool = False, num_components: int | None = None
+) -> RuleRepository:
     """Loads a repository file (default: the shipped ``default_rules.py``).
 
     Args:
         path: a Python file in the sandbox's subset; ``None`` = the shipped repository.
-        validate: also run the sandbox's child-process validation (costs ~2 s; do it for files
-            written by an LLM that were not checked when generated).
+        validate: also run the sandbox's child-process validation (~1 s for the sandbox worker's
+            first start, milliseconds after; do it for files written by an LLM that were not
+            checked when generated).
+        num_components: the task's K, so validation calls the rules at the K they will serve
+            (None: K = 1, 4 and 12).
 
     Raises:
         ValueError: the sandbox refused the file (every reason is in the message).
     """
     path = Path(path) if path is not None else DEFAULT_REPOSITORY
     if validate:
-        verdict = check_file(path, "rule")
+        verdict = check_file(path, "rule", num_components=num_components)
         if not verdict.ok:
             raise ValueError(f"sandbox refused {path}:\n" + "\n".join(verdict.reasons))
     source = path.read_text()

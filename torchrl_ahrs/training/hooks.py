@@ -126,10 +126,10 @@ class ObservationNormUpdate(TrainerHookBase):
             self._pending = None
 
     def state_dict(self) -> dict[str, Any]:
-        return self.obs_norm.state_dict()
+        return {}  # the statistics are buffers of the networks, saved with them
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        self.obs_norm.load_state_dict(state_dict)
+        pass
 
     def register(self, trainer: Trainer, name: str = "obs_norm") -> None:
         trainer.register_op("batch_process", self.remember)

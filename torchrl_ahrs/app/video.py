@@ -16,7 +16,7 @@ Rendering needs a headless GL backend chosen before ``mujoco`` is imported: run 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,14 +24,13 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict
+from torchrl.envs import EnvBase
 from torchrl.record import VideoRecorder
 from torchrl.record.loggers import Logger
 from torchrl.trainers import Trainer, TrainerHookBase
 
-from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.evaluation.episodes import record_frames
 from torchrl_ahrs.evaluation.render import base_env, make_frame_source, write_clip
-from torchrl_ahrs.rewards.auxiliary import task_with_auxiliary
 
 
 class GifVideoLogger(Logger):
@@ -90,8 +89,8 @@ class VideoLog(TrainerHookBase):
     """Every ``interval`` iterations: one clip of ``num_frames`` frames of the policy (mean action).
 
     Args:
-        task: the task config (plain dict).
-        components: reward leaves (K axis) of the run.
+        make_envs: ``(num_envs, seed) -> env``, the run's environment factory
+            (:class:`~torchrl_ahrs.app.build.EnvFactory`).
         policy: the actor (reads ``"observation"``).
         run_dir: the run directory (clips go to ``videos/``, TensorBoard summaries to ``metrics/``).
         interval: iterations between clips.
@@ -99,14 +98,13 @@ class VideoLog(TrainerHookBase):
         seed: seed of the one-env copy of the task that is rendered.
 
     Example:
-        >>> hook = VideoLog(task, components, actor, run_dir, interval=10)  # doctest: +SKIP
+        >>> hook = VideoLog(make_envs, actor, run_dir, interval=10)  # doctest: +SKIP
         >>> hook.register(trainer)  # doctest: +SKIP
     """
 
     def __init__(
         self,
-        task: dict,
-        components: Sequence[str],
+        make_envs: Callable[[int, int], EnvBase],
         policy,
         run_dir: str | Path,
         interval: int,
@@ -118,7 +116,7 @@ class VideoLog(TrainerHookBase):
         if interval < 1:
             raise ValueError(f"logger.video_interval must be a positive integer, got {interval}")
         self.policy, self.interval, self.num_frames = policy, interval, num_frames
-        self.env = make_env(task, 1, seed, components=list(components))
+        self.env = make_envs(1, seed)
         self.frame_source = make_frame_source(self.env, width, height)  # fails now, not mid-run, if it cannot render
         control_dt = getattr(base_env(self.env), "control_dt", None)
         self.logger = GifVideoLogger(run_dir, 1.0 / control_dt if control_dt else 30.0, Path(run_dir) / "metrics")
@@ -148,7 +146,9 @@ class VideoLog(TrainerHookBase):
         trainer.register_module(name, self)
 
 
-def register_video_log(trainer: Trainer, cfg: DictConfig, policy, components: Sequence[str], run_dir: Path):
+def register_video_log(
+    trainer: Trainer, cfg: DictConfig, policy, make_envs: Callable[[int, int], EnvBase], run_dir: Path
+):
     """Registers a :class:`VideoLog` when ``cfg.logger.video_interval`` is a positive number; returns it
     (or None). Also reads ``logger.video_frames`` / ``video_width`` / ``video_height`` when present."""
     logger_cfg = cfg.get("logger") or {}
@@ -156,8 +156,7 @@ def register_video_log(trainer: Trainer, cfg: DictConfig, policy, components: Se
     if interval <= 0:
         return None
     hook = VideoLog(
-        task_with_auxiliary(cfg, check=False),
-        components,
+        make_envs,
         policy,
         run_dir,
         interval,

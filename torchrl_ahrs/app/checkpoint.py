@@ -1,10 +1,11 @@
 """Atomic checkpoints and exact resumption of a training run.
 
-A checkpoint (``<run dir>/checkpoint.pt``) holds everything the next iteration depends on: networks
-(with the observation-normalisation statistics, which are buffers of the actor), optimiser, the
-mixing weights, every stateful hook (scheduler history and selector, minibatch order, LR schedule),
-the random generators, and the frame and iteration counters. It is written to a temporary file and
-renamed over the old one, so a process killed mid-write leaves the previous checkpoint intact.
+A checkpoint (``<run dir>/checkpoint.pt``) is ``Trainer.state_dict()``: the trainer's one registry of
+everything the next iteration depends on — loss module (actor, critic, observation statistics),
+optimiser (with its current learning rate), collector, and every registered module (the estimator's
+mixing weights, scheduler history and selector, minibatch order, LR schedule, the random generators,
+the checkpoint's own counter). It is written to a temporary file and renamed over the old one, so a
+process killed mid-write leaves the previous checkpoint intact.
 
 On resume, metric rows and scheduler decisions logged after the checkpoint (by the iterations that
 were lost) are removed, so each iteration appears exactly once. Environments cannot be snapshotted: the
@@ -16,27 +17,14 @@ from __future__ import annotations
 
 import json
 import os
-import random
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torchrl.trainers import Trainer, TrainerHookBase
 
 CHECKPOINT_FILE = "checkpoint.pt"
-
-
-def rng_state() -> dict[str, Any]:
-    """States of Python's, NumPy's and torch's global generators."""
-    return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
-
-
-def set_rng_state(state: dict[str, Any]) -> None:
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
-    torch.set_rng_state(state["torch"])
 
 
 def save_atomic(state: dict[str, Any], path: Path) -> None:
@@ -79,10 +67,11 @@ def truncate_jsonl(path: Path, last_frames: int, frames_field: str = "frames") -
 
 
 class CheckpointHook(TrainerHookBase):
-    """Saves ``state_fn()`` atomically every ``interval`` training iterations (``post_steps``).
+    """Saves ``state_fn()`` (``Trainer.state_dict``) atomically every ``interval`` training iterations.
 
     Register it after every other ``post_steps`` hook, so that the saved state is the one the next
-    iteration starts from.
+    iteration starts from. Its own state (the iteration counter and the component names, which an
+    evaluation reads to rebuild the critic-free policy) is part of what it saves once registered.
 
     Example:
         >>> import tempfile
@@ -93,28 +82,37 @@ class CheckpointHook(TrainerHookBase):
         False
         >>> hook(); torch.load(path)["answer"]
         42
+        >>> hook.state_dict()["iteration"]
+        2
     """
 
-    def __init__(self, path: Path, interval: int, state_fn: Callable[[], dict[str, Any]]):
+    def __init__(
+        self, path: Path, interval: int, state_fn: Callable[[], dict[str, Any]], components: Sequence[str] = ()
+    ):
         self.path = Path(path)
         self.interval = interval
         self.state_fn = state_fn
+        self.components = list(components)
         self.iteration = 0
+        self.trainer: Trainer | None = None
 
     def __call__(self) -> None:
         self.iteration += 1
-        if self.iteration % self.interval == 0:
+        finished = self.trainer is not None and self.trainer.collected_frames >= self.trainer.total_frames
+        if self.iteration % self.interval == 0 or finished:  # the last one is saved before the collector shuts down
             self.save()
 
     def save(self) -> None:
-        save_atomic({**self.state_fn(), "iteration": self.iteration}, self.path)
+        save_atomic(self.state_fn(), self.path)
 
     def state_dict(self) -> dict[str, Any]:
-        return {"iteration": self.iteration}
+        return {"iteration": self.iteration, "components": self.components}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.iteration = int(state_dict["iteration"])
+        self.components = list(state_dict["components"])
 
     def register(self, trainer: Trainer, name: str = "checkpoint") -> None:
+        self.trainer = trainer
         trainer.register_op("post_steps", self)
         trainer.register_module(name, self)

@@ -1,4 +1,4 @@
-"""Task builders over :class:`~torchrl_ahrs.envs.envpool.EnvPoolEnv` whose reward is a component tree.
+"""Task builders over :class:`~torchrl_ahrs.envs.backends.envpool.EnvPoolEnv` whose reward is a component tree.
 
 Each builder follows the registry contract ``builder(task_cfg, num_envs, seed, device) -> EnvBase``:
 a batched env (batch size ``[num_envs]``) that writes ``("next", "reward", c)`` for every component of
@@ -18,7 +18,7 @@ from typing import Any
 
 from torchrl.envs import EnvBase, TransformedEnv
 
-from torchrl_ahrs.envs.envpool import INFO, EnvPoolEnv
+from torchrl_ahrs.envs.backends.envpool import INFO, EnvPoolEnv
 from torchrl_ahrs.rewards.components import RewardComponents
 
 MAKE_KWARGS = ("max_episode_steps",)  # task fields forwarded to envpool.make when present

@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
-from torchrl_ahrs.envs.rotations import body_axis, quat_rotate
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.common.rotations import body_axis, quat_rotate
 
 QUADCOPTER_TERMS = ("pos", "pos_up", "pos_spin")
 
@@ -73,7 +73,7 @@ class QuadcopterEnv(BatchedMujocoEnv):
         seed: int = 0,
         device: str = "cpu",
     ):
-        model = mujoco.MjModel.from_xml_path(str(files("torchrl_ahrs.envs") / "assets" / "quadcopter.xml"))
+        model = mujoco.MjModel.from_xml_path(str(files("torchrl_ahrs.envs.tasks") / "assets" / "quadcopter.xml"))
         self.target = torch.tensor(target, dtype=torch.float64)
         self.max_distance, self.min_height = float(max_distance), float(min_height)
         super().__init__(model, num_envs, decimation, max_episode_steps, num_threads, seed, device)

@@ -10,10 +10,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torchrl.modules import ProbabilisticActor
 
-from torchrl_ahrs.config import resolve_components
-from torchrl_ahrs.envs.registry import make_env
-from torchrl_ahrs.rewards.auxiliary import task_with_auxiliary
-from torchrl_ahrs.training.models import RunningNorm, build_actor
+from torchrl_ahrs.app.build import EnvFactory, build_networks, env_factory
 
 CONFIG_FILE = "config.yaml"
 CHECKPOINT_FILE = "checkpoint.pt"
@@ -25,12 +22,19 @@ class EvaluationError(RuntimeError):
 
 @dataclass
 class TrainedPolicy:
-    """What an evaluation needs from a run: its config, the task config, the K components and the actor."""
+    """What an evaluation needs from a run: its config, its environments, the K components and the actor."""
 
     cfg: DictConfig
-    task: dict[str, Any]
-    components: list[str]
+    make_envs: EnvFactory
     actor: ProbabilisticActor
+
+    @property
+    def components(self) -> list[str]:
+        return self.make_envs.components
+
+    @property
+    def task(self) -> dict[str, Any]:
+        return self.make_envs.task
 
 
 def load_policy(run_dir: str | Path) -> TrainedPolicy:
@@ -45,7 +49,7 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
         >>> load_policy("/nonexistent")
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.evaluation.policy.EvaluationError: no run directory at /nonexistent
+        torchrl_ahrs.app.policy.EvaluationError: no run directory at /nonexistent
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -65,25 +69,18 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
     if not isinstance(checkpoint, dict) or "actor" not in checkpoint:
         raise EvaluationError(f"checkpoint {checkpoint_path} has no 'actor' entry")
 
-    task = task_with_auxiliary(cfg, check=False)
-    components = list(checkpoint.get("components") or resolve_components(cfg))
-    probe = make_env(task, 1, int(cfg.seed), components=components)
-    obs_dim = probe.observation_spec["observation"].shape[-1]
-    action_spec = probe.full_action_spec[probe.action_key]
-    probe.close()
+    make_envs = env_factory(cfg, check_aux=False)
+    actor = build_networks(cfg, make_envs, with_critic=False).actor
     model = cfg.model
-    actor = build_actor(
-        RunningNorm(obs_dim), obs_dim, action_spec, model.hidden_sizes, model.activation, model.init_log_std
-    )
     try:
         actor.load_state_dict(checkpoint["actor"])  # includes the RunningNorm buffers mean, var, count
     except RuntimeError as error:
         raise EvaluationError(
             f"checkpoint {checkpoint_path} does not fit the actor described by {config_path} "
-            f"(task {task['name']}, observation {obs_dim}, hidden {list(model.hidden_sizes)}): {_one_line(error)}"
+            f"(task {cfg.task.name}, hidden {list(model.hidden_sizes)}): {_one_line(error)}"
         ) from error
     actor.eval()
-    return TrainedPolicy(cfg, task, components, actor)
+    return TrainedPolicy(cfg, make_envs, actor)
 
 
 def _one_line(error: BaseException) -> str:

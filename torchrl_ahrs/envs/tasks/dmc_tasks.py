@@ -28,7 +28,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, TransformedEnv
 
-from torchrl_ahrs.envs.envpool import EnvPoolEnv
+from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv
 from torchrl_ahrs.rewards.components import RewardComponents
 
 # dm_control.suite constants (walker.py, quadruped.py, cheetah.py)

@@ -38,8 +38,8 @@ TOUCH_MARGIN = 0.02  # metres added around a body's collision geoms for its touc
 
 
 def default_model_path() -> Path:
-    """Path of the project's own Cassie model (``torchrl_ahrs/envs/assets/cassie.xml``)."""
-    return Path(str(resources.files("torchrl_ahrs.envs") / "assets" / "cassie.xml"))
+    """Path of the project's own Cassie model (``torchrl_ahrs/envs/tasks/assets/cassie.xml``)."""
+    return Path(str(resources.files("torchrl_ahrs.envs.tasks") / "assets" / "cassie.xml"))
 
 
 def canonical_joint_name(name: str) -> str:

@@ -12,7 +12,7 @@ import os
 import mujoco
 import torch
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
 
 
 def envpool_ant_xml() -> str:

@@ -21,7 +21,7 @@ Two models load (``task.model_path``):
   legs collide with each other. It is unstable at 5 ms: use ``task.physics_dt=0.002 task.decimation=10``.
 
 Both ship torque motors with gearboxes (gear 25/25/16/16/50); loading turns them into PD servos with
-the motor torque limits (:mod:`torchrl_ahrs.envs.cassie_model`). Joint angle conventions differ, so the
+the motor torque limits (:mod:`torchrl_ahrs.envs.tasks.cassie_model`). Joint angle conventions differ, so the
 default pose is each model's ``home`` keyframe.
 
 Differences from legged_gym: no observation noise, no heading command (ω_yaw is commanded directly),
@@ -46,9 +46,9 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from torchrl_ahrs.envs import legged_rewards as lr
-from torchrl_ahrs.envs.cassie_model import LEG_JOINTS, CassieLayout, load_cassie_model
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.common import legged_rewards as lr
+from torchrl_ahrs.envs.tasks.cassie_model import LEG_JOINTS, CassieLayout, load_cassie_model
 
 OBS_SCALES = {"lin_vel": 2.0, "ang_vel": 0.25, "dof_pos": 1.0, "dof_vel": 0.05}
 
@@ -57,7 +57,7 @@ class CassieEnv(BatchedMujocoEnv):
     """N Cassies tracking velocity commands; see the module docstring.
 
     Args:
-        model, layout: from :func:`~torchrl_ahrs.envs.cassie_model.load_cassie_model`.
+        model, layout: from :func:`~torchrl_ahrs.envs.tasks.cassie_model.load_cassie_model`.
         num_envs: batch size N.
         decimation: physics steps per policy step (policy dt = decimation · model timestep).
         episode_length_s: time limit (s).

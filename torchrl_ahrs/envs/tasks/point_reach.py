@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 import torch
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
 
 POINT_XML = """
 <mujoco model="point_reach">

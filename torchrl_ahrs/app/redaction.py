@@ -102,7 +102,7 @@ class RedactHydraOutput(Callback):
         hydra:
           callbacks:
             redact_secrets:
-              _target_: torchrl_ahrs.redaction.RedactHydraOutput
+              _target_: torchrl_ahrs.app.redaction.RedactHydraOutput
 
     Example:
         >>> import tempfile

@@ -24,7 +24,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Compose, Transform
 
-from torchrl_ahrs.envs.envpool import INFO, EnvPoolEnv
+from torchrl_ahrs.envs.backends.envpool import INFO, EnvPoolEnv
 from torchrl_ahrs.rewards.components import RewardComponents
 
 COMPONENTS = ("dist", "rot", "action", "success", "fall")

@@ -2,21 +2,29 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_ahrs.app.auxiliary import aux_leaves, auxiliary_components
+from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.app.redaction import is_secret_key
 from torchrl_ahrs.envs.registry import available_tasks
-from torchrl_ahrs.redaction import is_secret_key
-from torchrl_ahrs.rewards.auxiliary import aux_leaves, auxiliary_components
 from torchrl_ahrs.training.loggers import BACKENDS
 
+__all__ = [
+    "ConfigError",
+    "load_saved_config",
+    "num_minibatches",
+    "refuse_renamed",
+    "resolve_components",
+    "save_config",
+    "validate_config",
+]
+
 REDACTED = "<redacted>"
-
-
-class ConfigError(ValueError):
-    """A config value that cannot work; the message names the field and the accepted values."""
 
 
 def resolve_components(cfg: DictConfig) -> list[str]:
@@ -25,17 +33,48 @@ def resolve_components(cfg: DictConfig) -> list[str]:
     return auxiliary_components(cfg.method.get("components"), cfg.task.components, cfg.method.get("auxiliary"))
 
 
+# Keys renamed to TorchRL's names: an old name is refused with a pointer to its successor.
+RENAMED_KEYS = {
+    "ppo.entropy_coef": "ppo.entropy_coeff",
+    "ppo.critic_coef": "ppo.critic_coeff",
+    "trainer.rollout_steps": "trainer.frames_per_batch (= num_envs x steps per environment)",
+    "trainer.num_minibatches": "trainer.mini_batch_size (= frames_per_batch / minibatches)",
+    "device": "nothing: networks and environments run on the CPU",
+}
+
+
+def refuse_renamed(keys: Iterable[str]) -> None:
+    """Raises :class:`ConfigError` naming the new key when ``keys`` holds a renamed one.
+
+    Example:
+        >>> refuse_renamed(["trainer.lr", "ppo.entropy_coef"])
+        Traceback (most recent call last):
+        ...
+        torchrl_ahrs.app.errors.ConfigError: ppo.entropy_coef was renamed: use ppo.entropy_coeff
+    """
+    for key in keys:
+        key = key.lstrip("+~")
+        if key in RENAMED_KEYS:
+            raise ConfigError(f"{key} was renamed: use {RENAMED_KEYS[key]}")
+
+
+def num_minibatches(cfg: DictConfig) -> int:
+    """Minibatches per PPO epoch: ``frames_per_batch / mini_batch_size``."""
+    return cfg.trainer.frames_per_batch // cfg.trainer.mini_batch_size
+
+
 def validate_config(cfg: DictConfig) -> None:
     """Raises :class:`ConfigError` with one clear line for the first impossible value."""
+    refuse_renamed(_dotted_keys(OmegaConf.to_container(cfg, resolve=False)))
     if cfg.task.name not in available_tasks():
         raise ConfigError(f"unknown task {cfg.task.name!r}; available tasks: {', '.join(available_tasks())}")
     trainer = cfg.trainer
     positive = {
         "trainer.total_frames": trainer.total_frames,
         "trainer.num_envs": trainer.num_envs,
-        "trainer.rollout_steps": trainer.rollout_steps,
+        "trainer.frames_per_batch": trainer.frames_per_batch,
         "trainer.num_epochs": trainer.num_epochs,
-        "trainer.num_minibatches": trainer.num_minibatches,
+        "trainer.mini_batch_size": trainer.mini_batch_size,
         "trainer.workers": trainer.workers,
         "trainer.torch_threads": trainer.torch_threads,
         "scheduler.interval": cfg.scheduler.interval,
@@ -57,10 +96,15 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"trainer.num_envs ({trainer.num_envs}) must be divisible by trainer.workers ({trainer.workers})"
         )
-    frames_per_batch = trainer.num_envs * trainer.rollout_steps
-    if frames_per_batch < trainer.num_minibatches:
+    if trainer.frames_per_batch % trainer.num_envs:
         raise ConfigError(
-            f"a batch of {frames_per_batch} frames cannot be split into {trainer.num_minibatches} minibatches"
+            f"trainer.frames_per_batch ({trainer.frames_per_batch}) must be a multiple of trainer.num_envs "
+            f"({trainer.num_envs}): each environment steps frames_per_batch / num_envs times per iteration"
+        )
+    if trainer.frames_per_batch % trainer.mini_batch_size:
+        raise ConfigError(
+            f"trainer.frames_per_batch ({trainer.frames_per_batch}) must be a multiple of trainer.mini_batch_size "
+            f"({trainer.mini_batch_size})"
         )
     if not 0 <= cfg.ppo.gamma <= 1 or not 0 <= cfg.ppo.lmbda <= 1:
         raise ConfigError(f"ppo.gamma and ppo.lmbda must lie in [0, 1], got {cfg.ppo.gamma}, {cfg.ppo.lmbda}")
@@ -84,6 +128,16 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"method.initial_weights has {len(weights)} values but there are {len(components)} components {components}"
         )
+
+
+def _dotted_keys(container: Any, prefix: str = "") -> list[str]:
+    if not isinstance(container, dict):
+        return []
+    keys = []
+    for key, value in container.items():
+        dotted = f"{prefix}{key}"
+        keys += [dotted, *_dotted_keys(value, dotted + ".")]
+    return keys
 
 
 def redact(container: Any) -> Any:

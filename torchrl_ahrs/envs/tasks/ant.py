@@ -26,8 +26,8 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase
 
-from torchrl_ahrs.envs.mujoco_base import BatchedMujocoEnv, with_reward_components
-from torchrl_ahrs.envs.rotations import body_axis, quat_rotate_inverse
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.common.rotations import body_axis, quat_rotate_inverse
 
 ANT_TERMS = ("progress", "alive", "up", "heading", "actions_cost", "energy", "joints_at_limit", "death")
 
@@ -121,7 +121,7 @@ class AntEnv(BatchedMujocoEnv):
         seed: int = 0,
         device: str = "cpu",
     ):
-        model = mujoco.MjModel.from_xml_path(str(files("torchrl_ahrs.envs") / "assets" / "ant.xml"))
+        model = mujoco.MjModel.from_xml_path(str(files("torchrl_ahrs.envs.tasks") / "assets" / "ant.xml"))
         self.scales = {**DEFAULT_SCALES, **(scales or {})}
         self.target_xy = torch.tensor(target_xy, dtype=torch.float64)
         low, high = model.jnt_range[1:, 0], model.jnt_range[1:, 1]  # joint 0 is the free root

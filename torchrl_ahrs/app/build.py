@@ -1,0 +1,192 @@
+"""Builds the parts of a training run from its config: environments, networks, estimator, loss,
+optimiser, collector and scheduler. Nothing here runs an iteration (that is :mod:`.iteration`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
+from torchrl.envs import EnvBase
+from torchrl.modules import ProbabilisticActor
+
+from torchrl_ahrs.app.auxiliary import TransformFactory, auxiliary_transform
+from torchrl_ahrs.app.config import resolve_components
+from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.envs.registry import make_env
+from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
+from torchrl_ahrs.training.loss import HybridClipPPOLoss
+from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
+from torchrl_ahrs.value import WeightedMultiGAE
+
+
+@dataclass
+class EnvFactory:
+    """Picklable constructor of the run's environments (the task, its components and the extra
+    transforms such as the auxiliary reward), so collector worker processes build exactly what the
+    learner's probe saw."""
+
+    task: dict[str, Any]
+    components: list[str]
+    transforms: tuple[TransformFactory, ...] = ()
+
+    def __call__(self, num_envs: int, seed: int) -> EnvBase:
+        return make_env(self.task, num_envs, seed, components=self.components, transforms=self.transforms)
+
+
+def env_factory(cfg: DictConfig, check_aux: bool = True) -> EnvFactory:
+    """The run's :class:`EnvFactory`; with ``check_aux`` the auxiliary reward file (when the method uses
+    one) passes the sandbox on real transitions first."""
+    aux = auxiliary_transform(cfg, check=check_aux)
+    task = OmegaConf.to_container(cfg.task, resolve=True)
+    return EnvFactory(task, resolve_components(cfg), (aux,) if aux else ())
+
+
+@dataclass
+class Networks:
+    """The policy and the K-head critic with their observation normalisers (``critic_norm`` is
+    ``actor_norm`` unless the task gives the critic privileged observations)."""
+
+    actor: ProbabilisticActor
+    critic: Any
+    actor_norm: RunningNorm
+    critic_norm: RunningNorm
+    critic_key: str
+
+
+def build_networks(cfg: DictConfig, make_envs: EnvFactory, with_critic: bool = True) -> Networks:
+    """Actor and critic shaped by a one-env probe of the task (observation sizes, action bounds).
+
+    Raises:
+        ConfigError: ``task.critic_observation`` names no observation of the task.
+    """
+    probe = make_envs(1, int(cfg.seed))
+    try:
+        obs_dim = probe.observation_spec["observation"].shape[-1]
+        critic_key = cfg.task.get("critic_observation") or "observation"  # asymmetric actor-critic
+        if critic_key not in probe.observation_spec.keys():
+            raise ConfigError(f"task.critic_observation={critic_key!r} is not an observation of task {cfg.task.name!r}")
+        critic_obs_dim = probe.observation_spec[critic_key].shape[-1]
+        action_spec = probe.full_action_spec[probe.action_key]
+    finally:
+        probe.close()
+    model = cfg.model
+    actor_norm = RunningNorm(obs_dim)
+    critic_norm = actor_norm if critic_key == "observation" else RunningNorm(critic_obs_dim)
+    actor = build_actor(actor_norm, obs_dim, action_spec, model.hidden_sizes, model.activation, model.init_log_std)
+    critic = None
+    if with_critic:
+        critic = build_critic(
+            critic_norm,
+            critic_obs_dim,
+            len(make_envs.components),
+            model.hidden_sizes,
+            model.activation,
+            model.separate_heads,
+            in_key=critic_key,
+        )
+    return Networks(actor, critic, actor_norm, critic_norm, critic_key)
+
+
+def build_estimator_and_loss(cfg: DictConfig, networks: Networks, components: Sequence[str]):
+    """:class:`WeightedMultiGAE` over the K components and the PPO loss that trains on its mixed advantage.
+
+    With ``ppo.value_norm`` the loss regresses the critic's normalised heads while the estimator reads
+    them mapped back to reward units (training/value_norm.py); the statistics live in the estimator's
+    value network (checkpointed with it) and are reachable as ``estimator.value_norm``."""
+    ppo = cfg.ppo
+    value_norm = make_value_norm(ppo.get("value_norm"), len(components))
+    gae_critic = denormalized_critic(networks.critic, value_norm) if value_norm is not None else networks.critic
+    estimator = WeightedMultiGAE(
+        list(components),
+        gamma=ppo.gamma,
+        lmbda=ppo.lmbda,
+        value_network=gae_critic,
+        normalize_components=ppo.normalize_components,
+    )
+    estimator.value_norm = value_norm
+    loss = HybridClipPPOLoss(
+        networks.actor,
+        networks.critic,
+        clip_epsilon=ppo.clip_epsilon,
+        entropy_bonus=ppo.entropy_coeff > 0,
+        entropy_coeff=ppo.entropy_coeff,
+        critic_coeff=ppo.critic_coeff,
+        loss_critic_type="l2",
+        normalize_advantage=ppo.normalize_advantage,
+        clip_value=ppo.get("clip_value"),  # in normalised units when value_norm is on
+        # the modules are called as they are: the functional parameter swap (to_module per call) cost ~1 ms
+        # per minibatch, a third of a small-minibatch loss step, and nothing here needs functional calls
+        functional=False,
+    )
+    return estimator, loss
+
+
+@dataclass
+class _WorkerEnvs:
+    """One collector worker's environments (picklable: a factory, a size and a seed)."""
+
+    make_envs: EnvFactory
+    num_envs: int
+    seed: int
+
+    def __call__(self) -> EnvBase:
+        return self.make_envs(self.num_envs, self.seed)
+
+
+def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory):
+    """``sync``: the envs step in this process between updates. ``multi``: ``workers`` processes each
+    step ``num_envs / workers`` envs, all waiting for the update. ``async``: the worker processes keep
+    collecting while the learner updates (each iteration trains on one worker's share of the batch,
+    gathered with the previous iteration's policy). On resume the trainer's registry restores the
+    collector's frame counter, so ``total_frames`` is always the whole budget."""
+    trainer_cfg = cfg.trainer
+    frames_per_batch = trainer_cfg.frames_per_batch
+    if trainer_cfg.collector == "sync":
+        return Collector(
+            make_envs(trainer_cfg.num_envs, int(cfg.seed)),
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=trainer_cfg.total_frames,
+            auto_register_policy_transforms=False,
+        )
+    workers = trainer_cfg.workers
+    env_fns = [
+        _WorkerEnvs(make_envs, trainer_cfg.num_envs // workers, int(cfg.seed) + 1000 * worker)
+        for worker in range(workers)
+    ]
+    if trainer_cfg.collector == "async":
+        return MultiAsyncCollector(
+            env_fns, policy, frames_per_batch=frames_per_batch // workers, total_frames=trainer_cfg.total_frames
+        )
+    return MultiSyncCollector(
+        env_fns, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames, cat_results=0
+    )
+
+
+def build_checked_scheduler(
+    cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run_dir: Path, logger
+) -> RuleScheduler:
+    """``build_scheduler`` with every rule tried once on K-shaped statistics, so a rule file that
+    cannot serve this task fails at start as a :class:`ConfigError` rather than at the first decision."""
+    try:
+        scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
+    except (ValueError, KeyError, FileNotFoundError, ImportError, SyntaxError) as error:
+        raise ConfigError(f"scheduler setup failed: {error}") from error
+    num_components = len(components)
+    statistics = (torch.linspace(-1.0, 1.0, num_components), torch.ones(num_components))
+    history = torch.zeros(cfg.scheduler.history_length, num_components)
+    misfits = []
+    for rule in scheduler.repository.rules:
+        try:
+            rule.scores(*statistics, history, estimator.weights.clone())
+        except Exception as error:  # a rule file is user input: any failure is a misfit, reported by name
+            misfits.append(f"{rule.key}: {error}")
+    if misfits:
+        raise ConfigError(f"rules that do not fit K={num_components} components {components}: " + "; ".join(misfits))
+    return scheduler
