@@ -217,8 +217,11 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         trainer.load_state_dict(resumed)
         collector.update_policy_weights_()
 
-    if done_frames < cfg.trainer.total_frames:
-        trainer.train()  # its last iteration writes the final checkpoint
+    try:
+        if done_frames < cfg.trainer.total_frames:
+            trainer.train()  # its last iteration writes the final checkpoint
+    finally:
+        logger.close()  # TensorBoard's writer thread would otherwise still be writing after we return
     returns_log = trainer._modules["component_returns"]
     log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
     return dict(returns_log.latest)

@@ -35,6 +35,13 @@ class FanoutLogger(Logger):
         for logger in self.loggers:
             logger.log_scalar(name, value, step=step)
 
+    def close(self) -> None:
+        """Flushes and closes every backend that holds a writer (TensorBoard's event file thread)."""
+        for logger in self.loggers:
+            writer = getattr(logger, "experiment", None)
+            if hasattr(writer, "close"):
+                writer.close()
+
     def log_video(self, name: str, video, step: int | None = None, **kwargs) -> None:
         for logger in self.loggers:
             logger.log_video(name, video, step=step, **kwargs)
