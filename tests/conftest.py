@@ -1,9 +1,18 @@
-"""Shared fixtures: a scripted local OpenAI-compatible server and a loopback-only network guard."""
+"""Shared fixtures: a scripted local OpenAI-compatible server and a loopback-only network guard; and
+``make_cfg``, the one way tests compose the packaged Hydra config (``from conftest import make_cfg``)."""
 
 import socket
 
 import pytest
+from hydra import compose, initialize_config_module
 from llm_server import ScriptedServer
+
+
+def make_cfg(*overrides: str, hydra: bool = False):
+    """``conf/config.yaml`` composed with ``overrides`` as on the command line; ``hydra=True`` keeps the
+    ``hydra`` section (launcher, callbacks, run dir)."""
+    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
@@ -40,11 +40,6 @@ FAST = [
     "scheduler.interval=1",
     "model.hidden_sizes=[32,32]",
 ]
-
-
-def make_cfg(*overrides):
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
 
 
 def task_dict(name, **extra):
@@ -113,8 +108,9 @@ def test_transform_writes_aux_and_total_aux_next_to_the_native_reward():
         transforms=[lambda: AuxiliaryReward.from_file(path, scale=2.0, expected_digest=file_digest(path))],
     )
     check_env_specs(env)
-    spec = env.full_reward_spec["reward"]
-    assert {AUX, TOTAL_AUX} <= set(spec.keys())
+    # the component leaves are declared next to the total, which stays the env's only reward
+    assert env.reward_key == ("reward", "total")
+    assert {AUX, TOTAL_AUX} <= set(env.full_observation_spec["reward"].keys())
     rollout = env.rollout(5, break_when_any_done=False)
     reward = rollout["next", "reward"]
     assert reward[AUX].shape == (4, 5, 1) and reward[AUX].dtype == torch.float32
@@ -360,7 +356,7 @@ def _generator_cfg(server, attempts=3):
 
 @pytest.mark.slow
 def test_generator_feeds_refusals_back_and_saves_with_provenance(llm_server, loopback_only, tmp_path, monkeypatch):
-    from torchrl_ahrs.generate_aux import generate
+    from torchrl_ahrs.app.generate_aux import generate
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
     llm_server.script = [("ok", HOSTILE_ANSWER), ("ok", NAN_ANSWER), ("ok", GOOD_ANSWER)]
@@ -378,7 +374,7 @@ def test_generator_feeds_refusals_back_and_saves_with_provenance(llm_server, loo
 
 
 def test_generator_gives_up_after_the_configured_attempts(llm_server, loopback_only, tmp_path, monkeypatch):
-    from torchrl_ahrs.generate_aux import generate
+    from torchrl_ahrs.app.generate_aux import generate
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
     llm_server.script = [("ok", HOSTILE_ANSWER)]

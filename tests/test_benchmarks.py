@@ -109,3 +109,13 @@ def test_record_learning_run_writes_curve_evaluation_and_config(tmp_path, monkey
     assert rows[1:] == ["2048,-5.0,0.1,,", "4096,,0.2,,", "6144,12.5,0.3,,"]
     assert (out / "evaluation.json").read_text() == '{"return": 1}'
     assert "wall 1 s" in (out / "timing.txt").read_text()
+
+
+def test_bench_mjx_runs(monkeypatch, capsys):
+    pytest.importorskip("mujoco.mjx", reason='JAX / mujoco-mjx absent: pip install -e ".[mjx]" runs this test')
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    argv = ["--task", "quadcopter", "--num-envs", "2", "--steps", "2", "--threads", "1"]
+    rows = [
+        line for line in run_script("bench_mjx.py", argv, monkeypatch, capsys).splitlines() if line.startswith("| 2 ")
+    ]
+    assert [row.split("|")[2].strip() for row in rows] == ["cpu", "mjx"]

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 from PIL import Image
 
 from torchrl_ahrs.app.config import save_config
@@ -32,11 +32,6 @@ TINY_RUN = [
     "model.hidden_sizes=[32,32]",
 ]
 POINT_REACH_EPISODE_STEPS = 100  # conf/task/point_reach.yaml: max_episode_steps, and it never terminates early
-
-
-def make_cfg(*overrides):
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
 
 
 def run_cli(*args, timeout=300):

@@ -53,7 +53,7 @@ def llm_config(server, **overrides):
 
 class Estimator:
     def __init__(self, k=3):
-        self.weights = torch.ones(k)
+        self.weights = torch.full((k,), 0.5)  # base weight: the scheduler keeps the estimator's weights
 
     def set_weights(self, weights):
         self.weights = weights.clone()
@@ -278,7 +278,7 @@ def spread(mean_returns, var_returns, history, previous_weights):
 
 
 def test_generate_rules_writes_a_sandboxed_repository(server, tmp_path):
-    from torchrl_ahrs.generate_rules import generate
+    from torchrl_ahrs.app.generate_rules import generate
 
     server.script = [("ok", GENERATED_ANSWER)]
     cfg = OmegaConf.create(

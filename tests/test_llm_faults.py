@@ -10,7 +10,7 @@ import time
 
 import pytest
 import torch
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 from llm_server import ScriptedServer, context_length_error, free_port
 
 from torchrl_ahrs.llm.client import CALLS_FILE, LLMClient, LLMConfig, retry_after
@@ -31,7 +31,7 @@ def rate_limit(headers):
 
 class Estimator:
     def __init__(self, k=3):
-        self.weights = torch.ones(k)
+        self.weights = torch.full((k,), 0.5)  # base weight: the scheduler keeps the estimator's weights
 
     def set_weights(self, weights):
         self.weights = weights.clone()
@@ -197,8 +197,7 @@ def test_training_goes_on_through_every_fault(tmp_path, loopback_only):
         "trainer.progress_bar=false",
         "model.hidden_sizes=[32,32]",
     ]
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=overrides)
+    cfg = make_cfg(*overrides)
     try:
         train(cfg, run_dir)
     finally:

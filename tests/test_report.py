@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 from hydra.utils import get_class
 
-from torchrl_ahrs.report import write_report
+from torchrl_ahrs.app.report import write_report
 from torchrl_ahrs.reporting.stats import bootstrap_ci, change_percent, final_return, interquartile_mean
 
 BUDGET = 1000
@@ -158,22 +158,17 @@ def test_statistics_on_hand_checkable_inputs():
     assert math.isnan(final_return(np.array([100]), np.array([7.0]), 1000))
 
 
-def compose_sweep(*overrides):
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
-
-
 def test_sweep_presets_load():
-    local = compose_sweep("+sweep=paper", "task=quadcopter")
+    local = make_cfg("+sweep=paper", "task=quadcopter", hydra=True)
     assert local.hydra.launcher._target_.endswith("JoblibLauncher") and local.hydra.launcher.n_jobs == 2
     assert (local.trainer.torch_threads, local.task.num_threads, local.llm.name) == (1, 1, "offline")
     assert set(local.hydra.sweeper.params.method.split(",")) >= {"ppo", "hdppo", "ahrs_wo_a", "ahrs_r"}
     get_class(local.hydra.launcher._target_)  # the joblib plugin is installed
-    slurm = compose_sweep("+sweep=paper", "hydra/launcher=slurm")
+    slurm = make_cfg("+sweep=paper", "hydra/launcher=slurm", hydra=True)
     assert slurm.hydra.launcher._target_.endswith("SlurmLauncher")
     assert slurm.hydra.launcher.cpus_per_task == 4 and slurm.hydra.launcher.gpus_per_node == 0
     get_class(slurm.hydra.launcher._target_)  # the submitit plugin is installed
-    smoke = compose_sweep("+sweep=smoke")
+    smoke = make_cfg("+sweep=smoke", hydra=True)
     assert len(smoke.hydra.sweeper.params.seed.split(",")) == 2
 
 

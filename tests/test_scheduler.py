@@ -28,8 +28,8 @@ COMPONENTS = ["forward", "ctrl", "survive"]
 class FakeEstimator:
     """The interface of WeightedMultiGAE the scheduler relies on."""
 
-    def __init__(self, k):
-        self.weights = torch.ones(k)
+    def __init__(self, k, weight=0.5):
+        self.weights = torch.full((k,), weight)  # the scheduler keeps these until its first decision
         self.calls = 0
 
     def set_weights(self, weights):
@@ -247,3 +247,39 @@ def test_register_hooks_on_trainer():
     scheduler = RuleScheduler(FakeEstimator(3), COMPONENTS, REPO, ConstantSelector(), interval=1)
     scheduler.register(trainer, "rule_scheduler")
     assert {"pre_steps_log", "post_steps"} <= set(trainer.ops) and trainer.modules["rule_scheduler"] is scheduler
+
+
+class NamedEstimator(FakeEstimator):
+    """Like WeightedMultiGAE: knows its components."""
+
+    def __init__(self, components, weights):
+        super().__init__(len(components))
+        self.components = list(components)
+        self.weights = torch.tensor(weights)
+
+
+def test_estimator_weights_and_components_are_kept_unless_given():
+    estimator = NamedEstimator(COMPONENTS, [1.0, 0.5, 0.5])
+    scheduler = RuleScheduler(estimator, selector=FixedSelector(REPO, "mean_returns_only"), interval=1)
+    assert scheduler.components == COMPONENTS and scheduler.selector.name == "fixed"
+    assert estimator.weights.tolist() == [1.0, 0.5, 0.5] and estimator.calls == 0
+    assert RuleScheduler(estimator).selector.name == "bandit"  # the default selector
+    RuleScheduler(estimator, initial_weights=[0.2, 0.2, 0.2])
+    assert estimator.weights.tolist() == pytest.approx([0.2, 0.2, 0.2])
+    with pytest.raises(ValueError, match=r"differ from the estimator's"):
+        RuleScheduler(estimator, ["a", "b", "c"])
+
+
+def test_episode_return_key_is_configurable_and_a_missing_one_is_named():
+    batch = make_batch([[1.0, 2.0, 0.0]]).rename_key_(("next", "episode_reward"), ("next", "episode"))
+    scheduler = RuleScheduler(NamedEstimator(COMPONENTS, [0.5] * 3), selector=ConstantSelector())
+    with pytest.raises(KeyError, match=r"no episode returns at \('next', 'episode_reward', 'forward'\)"):
+        scheduler.observe_batch(batch)
+    scheduler.set_keys(episode_reward="episode").observe_batch(batch)
+    assert scheduler.statistics.summarise().mean == pytest.approx([1.0, 2.0, 0.0])
+
+
+def test_build_scheduler_has_a_default_for_every_key():
+    scheduler = build_scheduler({}, NamedEstimator(COMPONENTS, [1.0, 1.0, 1.0]))
+    assert scheduler.selector.name == "constant" and scheduler.interval == 100
+    assert scheduler.weights.tolist() == [0.5, 0.5, 0.5]  # initial_weights: null = base_weight

@@ -15,7 +15,7 @@ import sys
 import uuid
 
 import pytest
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 
 from torchrl_ahrs.app.redaction import RedactHydraOutput, is_secret_key, secret_values
 from torchrl_ahrs.llm.client import CALLS_FILE, LLMClient, LLMConfig
@@ -102,8 +102,7 @@ def test_environment_key_is_sent_and_masked_in_the_call_log(llm_server, tmp_path
 
 
 def test_hydra_output_is_registered_for_redaction():
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        cfg = compose(config_name="config", return_hydra_config=True)
+    cfg = make_cfg(hydra=True)
     targets = [callback.get("_target_") for callback in (cfg.hydra.callbacks or {}).values()]
     assert "torchrl_ahrs.app.redaction.RedactHydraOutput" in targets, (
         "conf/config.yaml must register hydra.callbacks.redact_secrets._target_: "
@@ -129,8 +128,7 @@ def test_secret_values_come_from_config_and_overrides():
 def test_callback_rewrites_job_and_sweep_files(tmp_path):
     key = fake_key("config")
     overrides = ["llm=openai", f"llm.api_key={key}", f"hydra.run.dir={tmp_path}", f"hydra.sweep.dir={tmp_path}"]
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    cfg = make_cfg(*overrides, hydra=True)
     cfg.hydra.runtime.output_dir = str(tmp_path)
     (tmp_path / ".hydra").mkdir()
     for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):

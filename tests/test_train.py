@@ -7,7 +7,7 @@ import sys
 
 import pytest
 import torch
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 
 from torchrl_ahrs.app.config import ConfigError, validate_config
 from torchrl_ahrs.train import train
@@ -23,11 +23,6 @@ FAST = [
     "model.hidden_sizes=[64,64]",
     "ppo.value_norm=running",  # the per-head value normalisation of the presets (K = 3 heads here)
 ]
-
-
-def make_cfg(*overrides):
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
 
 
 def read_scalar(run_dir, name):

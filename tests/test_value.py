@@ -115,6 +115,25 @@ def test_separate_heads_are_independent():
 def test_keys_are_configurable():
     batch = make_batch().rename_key_(("next", "reward"), ("next", "parts"))
     estimator = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic())
-    estimator.set_keys(reward_tree="parts", advantage="adv", advantage_components="adv_k")
+    estimator.set_keys(reward="parts", advantage="adv", advantage_components="adv_k")
+    assert ("next", "parts", "c0") in estimator.in_keys and "reward" not in str(estimator.in_keys)
+    assert estimator.out_keys == ["adv", "adv_k", "value_target"]
     out = estimator(batch)
     assert out["adv"].shape == (B, T, 1) and out["adv_k"].shape == (B, T, K)
+
+
+def test_reward_key_names_the_input_tree_and_the_total_is_left_alone():
+    batch = make_batch()
+    total = torch.randn(B, T, 1)
+    batch["next", "reward", "total"] = total.clone()
+    estimator = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic())
+    out = estimator(batch)
+    torch.testing.assert_close(out["next", "reward", "total"], total)  # never overwritten by a [.., K] stack
+    assert set(out["next", "reward"].keys()) == {*NAMES, "total"}
+    estimator.set_keys(reward=("reward", "total"))  # TorchRL's env.reward_key: a leaf, not the tree
+    with pytest.raises(KeyError, match=r"names the tree's root"):
+        estimator(make_batch())
+
+
+def test_forward_has_its_own_docstring():
+    assert "Σ_k w_k A_k" in WeightedMultiGAE.forward.__doc__

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Regenerates requirements.lock: every package torchrl-ahrs and its [test] extra need, pinned, with sha256
-# hashes, for CPython 3.11 on linux x86_64 (the project's machines). Existing pins are kept (uv prefers
+# Regenerates requirements.lock: every package torchrl-ahrs and its [test] and [mjx] extras need (CI runs the
+# MJX tests), pinned, with sha256 hashes, for CPython 3.11 on linux x86_64 (the project's machines).
+# Existing pins are kept (uv prefers
 # the versions already in the output file); pass --upgrade or --upgrade-package NAME to move them.
 #
 # uv runs from a throwaway virtual environment, never the project's. The machine's pip configuration
@@ -16,7 +17,7 @@ sources=()
 for index in /opt/pypi/simple /opt/pypi-more/simple; do
     [ -d "$index" ] && sources+=(--extra-index-url "file://$index")
 done
-"$TOOL_VENV/bin/uv" pip compile pyproject.toml --extra test \
+"$TOOL_VENV/bin/uv" pip compile pyproject.toml --extra test --extra mjx \
     --generate-hashes --python-version 3.11 --python-platform x86_64-manylinux_2_28 \
     "${sources[@]}" --index-strategy unsafe-best-match \
     --custom-compile-command "tools/lock_dependencies.sh" \

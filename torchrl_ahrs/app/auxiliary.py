@@ -13,13 +13,14 @@ import re
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from omegaconf import OmegaConf
 from torchrl.envs.transforms import Transform
 
 from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.common.config_access import select as _select
 from torchrl_ahrs.envs.registry import available_tasks, load_task_config, make_env
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
@@ -63,15 +64,6 @@ def auxiliary_components(
 def aux_leaves(auxiliary: str | None) -> set[str]:
     """Reward leaves a method may name in addition to the task's components."""
     return {AUX, TOTAL_AUX} if auxiliary else set()
-
-
-def _select(cfg: Any, key: str, default: Any = None) -> Any:
-    node = cfg
-    for part in key.split("."):
-        if node is None or not hasattr(node, "get"):
-            return default
-        node = node.get(part)
-    return default if node is None else node
 
 
 def resolve_aux_path(cfg: Any) -> Path:
@@ -139,7 +131,7 @@ def sandbox_aux_inputs(path: str, task: str | None = None) -> dict[str, torch.Te
     name = task or infer_aux_task(path)
     if not name:
         return None
-    return collect_aux_inputs(OmegaConf.to_container(load_task_config(name), resolve=True))
+    return collect_aux_inputs(cast(dict[str, Any], OmegaConf.to_container(load_task_config(name), resolve=True)))
 
 
 def auxiliary_transform(cfg: Any, check: bool = True) -> TransformFactory | None:
@@ -164,7 +156,7 @@ def auxiliary_transform(cfg: Any, check: bool = True) -> TransformFactory | None
     digest = file_digest(path)
     scale = float(_select(cfg, "aux.scale", 1.0))
     if check:
-        task = OmegaConf.to_container(cfg.task, resolve=True)
+        task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
         verdict = validate_aux_file(path, task, seed=int(_select(cfg, "seed", 0)))
         if not verdict.ok:
             raise ConfigError(

@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -43,7 +43,7 @@ def env_factory(cfg: DictConfig, check_aux: bool = True) -> EnvFactory:
     """The run's :class:`EnvFactory`; with ``check_aux`` the auxiliary reward file (when the method uses
     one) passes the sandbox on real transitions first."""
     aux = auxiliary_transform(cfg, check=check_aux)
-    task = OmegaConf.to_container(cfg.task, resolve=True)
+    task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
     return EnvFactory(task, resolve_components(cfg), (aux,) if aux else ())
 
 

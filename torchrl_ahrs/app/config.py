@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -156,7 +156,7 @@ def _is_secret(key: Any) -> bool:
     return isinstance(key, str) and is_secret_key(key)
 
 
-def load_saved_config(run_dir: Path, overrides: list[str] = ()) -> DictConfig:
+def load_saved_config(run_dir: Path, overrides: Sequence[str] = ()) -> DictConfig:
     """A run's saved ``config.yaml`` with redacted secrets emptied (they come from the environment
     again) and ``key=value`` command-line overrides applied (group choices such as ``task=`` are
     ignored: a resumed run keeps its task and method)."""
@@ -166,7 +166,7 @@ def load_saved_config(run_dir: Path, overrides: list[str] = ()) -> DictConfig:
     saved = OmegaConf.to_container(OmegaConf.load(path))
     cfg = OmegaConf.create(_unredact(saved))
     dotted = [item for item in overrides if "=" in item and "." in item.split("=", 1)[0]]
-    cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(dotted))
+    cfg = cast(DictConfig, OmegaConf.merge(cfg, OmegaConf.from_dotlist(dotted)))  # saved from a DictConfig
     cfg.resume = str(run_dir)
     return cfg
 

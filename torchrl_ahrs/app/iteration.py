@@ -7,6 +7,7 @@ One iteration, step by step (``Trainer.train``'s hook points in brackets)::
     2. rewards         RewardComponents / AuxiliaryReward already wrote ("next", "reward", c), c = 1..K
        [batch_process] FiniteGuard: stop on NaN/inf; ObservationNormUpdate.remember(batch)
        [pre_steps_log] ComponentReturnLog: reward/<c>, return/<c>, weight/<c>, frames_per_second
+       [pre_steps_log] ConsoleProgress: one line (frames, frames/s, ETA, return, rule); a table at decisions
     3. advantages      [pre_epoch] PPOMinibatches: WeightedMultiGAE(batch) with the current critic
                        -> advantage_components [N,T,K], value_target [N,T,K], advantage = Σ_k w_k A_k
     4. PPO epochs      [process_optim_batch] shuffled minibatches -> HybridClipPPOLoss -> Adam (clipped)
@@ -54,6 +55,7 @@ from torchrl_ahrs.app.checkpoint import (
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.video import register_video_log
 from torchrl_ahrs.scheduling.scheduler import DECISIONS_FILE
+from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.hooks import (
     ComponentReturnLog,
     FiniteGuard,
@@ -111,6 +113,15 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
         critic_norm = ObservationNormUpdate(networks.critic_norm, networks.critic_key)
     returns_log = ComponentReturnLog(parts["components"], parts["estimator"])
     returns_log.register(trainer)
+    if cfg.trainer.progress_bar:  # one short line per iteration, a per-component table now and then
+        ConsoleProgress(
+            cfg.trainer.total_frames,
+            parts["components"],
+            parts["estimator"],
+            parts["scheduler"],
+            table_interval=int(cfg.trainer.get("table_interval", 10)),
+            start_frames=int(parts.get("done_frames", 0)),
+        ).register(trainer)
     # 3-4. advantages and PPO epochs
     estimator, loss = parts["estimator"], parts["loss"]
     value_norm = getattr(estimator, "value_norm", None)
@@ -195,7 +206,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         logger=logger,
         clip_grad_norm=True,
         clip_norm=cfg.trainer.max_grad_norm,
-        progress_bar=cfg.trainer.progress_bar,
+        progress_bar=False,  # ConsoleProgress prints the run's line (TorchRL's bar shows every pbar metric)
         seed=cfg.seed + done_frames,
         num_epochs=cfg.trainer.num_epochs,
         log_interval=0,
@@ -210,7 +221,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     )
     parts = dict(
         cfg=cfg, run_dir=run_dir, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
-        optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, loss=loss,
+        optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, done_frames=done_frames,
+        loss=loss,
     )  # fmt: skip
     register_iteration(trainer, parts)
     if resumed:

@@ -62,6 +62,8 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
             f"no checkpoint at {checkpoint_path}: the run has not finished or ran with trainer.checkpoint=false"
         )
     cfg = OmegaConf.load(config_path)
+    if not isinstance(cfg, DictConfig):  # a YAML list would fail below with an unrelated message
+        raise EvaluationError(f"{config_path} is not a run configuration (not a mapping)")
     try:
         checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
     except Exception as error:  # torch raises many types for a damaged file

@@ -12,10 +12,10 @@ import importlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from torchrl.envs import EnvBase, RewardSum, Transform, TransformedEnv
+from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
-from torchrl_ahrs.rewards.components import TOTAL, component_reward_keys, episode_return_keys
+from torchrl_ahrs.rewards.components import TOTAL, ComponentRewardSum, component_reward_keys
 
 TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
 
@@ -26,6 +26,8 @@ _BUILDERS: dict[str, str] = {
     "leap_cube": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
     "humanoid": "torchrl_ahrs.envs.tasks.envpool_tasks:make_info_terms_task",
     "shadow_hand": "torchrl_ahrs.envs.tasks.shadow_hand:make_shadow_hand",
+    "shadow_hand_scissors": "torchrl_ahrs.envs.tasks.shadow_hand_scissors:make_shadow_hand_scissors",
+    "shadow_hand_bottle_cap": "torchrl_ahrs.envs.tasks.shadow_hand_bottle_cap:make_shadow_hand_bottle_cap",
     "dmc_walker_walk": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
     "dmc_quadruped_run": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
     "dmc_cheetah_run": "torchrl_ahrs.envs.tasks.dmc_tasks:make_dmc_task",
@@ -34,6 +36,9 @@ _BUILDERS: dict[str, str] = {
     "cassie": "torchrl_ahrs.envs.tasks.cassie:make_cassie",
     "point_reach": "torchrl_ahrs.envs.tasks.point_reach:make_point_reach",
 }
+# task.backend=mjx: the same tasks stepped by MJX on JAX (the [mjx] extra); task.backend=cpu uses _BUILDERS
+_MJX_BUILDERS = dict.fromkeys(("ant", "cassie", "quadcopter"), "torchrl_ahrs.envs.tasks.mjx_tasks:make_mjx_task")
+BACKENDS = ("cpu", "mjx")
 
 
 def register_task(name: str, builder: TaskBuilder | str) -> None:
@@ -46,11 +51,15 @@ def available_tasks() -> list[str]:
     return sorted(_BUILDERS)
 
 
-def get_builder(name: str) -> TaskBuilder:
-    """The builder registered as ``name``; an unknown name raises with the accepted names."""
-    if name not in _BUILDERS:
-        raise KeyError(f"unknown task {name!r}; available tasks: {', '.join(available_tasks())}")
-    builder = _BUILDERS[name]
+def get_builder(name: str, backend: str = "cpu") -> TaskBuilder:
+    """The builder registered as ``name`` for ``backend`` (``cpu`` or ``mjx``); unknown names raise with the accepted ones."""
+    if backend not in BACKENDS:
+        raise KeyError(f"unknown backend {backend!r}; backends: {', '.join(BACKENDS)}")
+    builders = _MJX_BUILDERS if backend == "mjx" else _BUILDERS
+    if name not in builders:
+        kind = "" if backend == "cpu" else f"{backend} "
+        raise KeyError(f"unknown {kind}task {name!r}; available {kind}tasks: {', '.join(sorted(builders))}")
+    builder = builders[name]
     if isinstance(builder, str):
         module_name, function_name = builder.split(":")
         builder = getattr(importlib.import_module(module_name), function_name)
@@ -68,7 +77,8 @@ def make_env(
     """Builds the task and tracks each component's episode return.
 
     Args:
-        task_cfg: the task's config (``conf/task/<name>.yaml``); ``task_cfg["name"]`` picks the builder.
+        task_cfg: the task's config (``conf/task/<name>.yaml``); ``task_cfg["name"]`` and
+            ``task_cfg.get("backend", "cpu")`` pick the builder.
         num_envs: batch size N.
         seed: environment seed.
         components: the reward leaves that form the K axis; default ``task_cfg["components"]``.
@@ -91,12 +101,13 @@ def make_env(
         raise ValueError(f"num_envs must be at least 1, got {num_envs}")
     components = list(components if components is not None else task_cfg["components"])
     tracked = components + ([TOTAL] if TOTAL not in components else [])
-    env = get_builder(task_cfg["name"])(task_cfg, num_envs, seed, device)
+    env = get_builder(task_cfg["name"], task_cfg.get("backend", "cpu"))(task_cfg, num_envs, seed, device)
     if transforms and not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     for make_transform in transforms:
         env.append_transform(make_transform())
-    missing = [key for key in component_reward_keys(tracked) if key not in env.full_reward_spec.keys(True, True)]
+    written = set(env.full_reward_spec.keys(True, True)) | set(env.full_observation_spec.keys(True, True))
+    missing = [key for key in component_reward_keys(tracked) if key not in written]
     if missing and any(key[-1] in (AUX, TOTAL_AUX) for key in missing):
         raise ValueError(
             f"components {components} name the auxiliary reward but no AuxiliaryReward transform was given; "
@@ -106,7 +117,7 @@ def make_env(
         raise ValueError(f"task {task_cfg['name']!r} does not write the reward leaves {missing}")
     if not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
-    env.append_transform(RewardSum(in_keys=component_reward_keys(tracked), out_keys=episode_return_keys(tracked)))
+    env.append_transform(ComponentRewardSum(tracked))
     return env
 
 

@@ -195,7 +195,7 @@ def write_clip(frames: list[np.ndarray] | np.ndarray, path: str | Path, fps: flo
             import imageio_ffmpeg  # noqa: F401  (imageio's MP4 writer needs it)
         except ImportError as error:
             raise RenderUnavailable("MP4 needs the package imageio-ffmpeg; use video_format=gif") from error
-        imageio.mimwrite(path, frames, fps=fps, macro_block_size=1)
+        imageio.mimwrite(path, frames, fps=fps, macro_block_size=1)  # type: ignore[arg-type]  # list is invariant
     else:
         raise ValueError(f"unknown clip format {path.suffix!r}; use .gif or .mp4")
     return path

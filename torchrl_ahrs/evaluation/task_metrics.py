@@ -8,6 +8,10 @@ over an episode's steps and also keeps its value at the episode's last step (``<
 cassie         ``lin_vel_error`` ‖cmd_xy − v_xy‖ (m/s, base frame), ``ang_vel_error`` |cmd_yaw − ω_z| (rad/s)
 point_reach    ``distance`` ‖p* − p‖ to the target (m)
 quadcopter     ``distance`` ‖p* − p‖ to the hover point (m)
+bimanual       ``success`` 1 while Bi-DexHands' success test holds (scissors opened by 0.29 rad, cap risen
+               0.03 m): its episode mean is the share of steps, ``success_final`` the share of episodes
+               ending opened; and ``success_rate`` the share of episodes that succeeded at some step
+               (shadow_hand_scissors, shadow_hand_bottle_cap)
 hands          ``success_rate``: share of episodes with a positive ``success`` return (any task that
                has a ``success`` component: shadow_hand, leap_cube); see :func:`episode_metrics`
 =============  =====================================================================================
@@ -42,7 +46,14 @@ def quadcopter_distance(env) -> dict[str, torch.Tensor]:
     return {"distance": torch.linalg.vector_norm(env.target - env.qpos[:, :3], dim=-1)}  # ‖p* − p‖
 
 
+def bimanual_success(env) -> dict[str, torch.Tensor]:
+    """Bi-DexHands' success flag ``[N]`` (1.0 / 0.0) of a bimanual Shadow hand task."""
+    return {"success": env.success().float()}
+
+
 STEP_PROBES: dict[str, StepProbe] = {
+    "shadow_hand_scissors": bimanual_success,
+    "shadow_hand_bottle_cap": bimanual_success,
     "cassie": cassie_tracking_errors,
     "point_reach": point_reach_distance,
     "quadcopter": quadcopter_distance,
@@ -59,14 +70,21 @@ def step_probe(task_name: str) -> StepProbe | None:
     return STEP_PROBES.get(task_name)
 
 
-def episode_metrics(returns: Mapping[str, torch.Tensor]) -> dict[str, float]:
-    """Metrics that follow from the per-episode component returns ``{c: [M]}``.
+def episode_metrics(
+    returns: Mapping[str, torch.Tensor], step_metrics: Mapping[str, torch.Tensor] | None = None
+) -> dict[str, float]:
+    """Metrics that follow from the per-episode component returns ``{c: [M]}`` and the per-episode means of
+    the step probe's metrics ``{m: [M]}`` (a ``success`` step flag there takes precedence).
 
     Example:
         >>> episode_metrics({"success": torch.tensor([0.0, 250.0, 500.0, 0.0])})
         {'success_rate': 0.5}
+        >>> episode_metrics({}, {"success": torch.tensor([0.0, 0.1, 0.0, 0.0])})
+        {'success_rate': 0.25}
     """
     metrics = {}
-    if "success" in returns:
+    if step_metrics is not None and "success" in step_metrics:
+        metrics["success_rate"] = (step_metrics["success"] > 0).float().mean().item()  # P(a successful step)
+    elif "success" in returns:
         metrics["success_rate"] = (returns["success"] > 0).float().mean().item()  # P(at least one success step)
     return metrics

@@ -71,6 +71,7 @@ class LLMConfig:
     temperature: float = 0.0
     max_tokens: int = 1024
     timeout: float = 60.0
+    decision_budget: float | None = None  # seconds for one decision: every attempt, backoff and correction
     max_retries: int = 3
     backoff: float = 2.0
     max_retry_after: float = 30.0
@@ -133,14 +134,21 @@ class LLMClient:
             raise ValueError("LLMClient needs llm.model (or llm.replay_from for replay)")
 
     # ---------------------------------------------------------------- public
-    def complete(self, messages: Messages, purpose: str, parser: Callable[[str], Any] | None = None) -> LLMReply:
+    def complete(
+        self,
+        messages: Messages,
+        purpose: str,
+        parser: Callable[[str], Any] | None = None,
+        deadline: float | None = None,
+    ) -> LLMReply:
         """Asks the model (or cache / replay); parses the answer with ``parser`` (which raises ValueError
-        on a bad answer); logs one line. Never raises for network or parse problems; they are in the reply."""
+        on a bad answer); logs one line. Never raises for network or parse problems; they are in the reply.
+        ``deadline`` (``time.monotonic()`` seconds) bounds every attempt and backoff together."""
         digest = prompt_hash(messages)
         if self._replay is not None:
             reply = self._answer_from_replay(digest)
         else:
-            reply = self._answer_from_cache(digest) or self._ask(messages)
+            reply = self._answer_from_cache(digest) or self._ask(messages, deadline)
             if reply.text is not None and reply.source == "llm":
                 self._store_in_cache(digest, reply.text)
         if reply.text is not None and parser is not None:
@@ -166,7 +174,7 @@ class LLMClient:
                 text = text.replace(secret, "***")
         return text
 
-    def _ask(self, messages: Messages) -> LLMReply:
+    def _ask(self, messages: Messages, deadline: float | None = None) -> LLMReply:
         import litellm  # deferred: slow import, and offline runs never need it
 
         litellm.telemetry = False
@@ -177,9 +185,14 @@ class LLMClient:
         started = time.monotonic()
         server_wait: float | None = None  # the last Retry-After demand
         for attempt in range(self.config.max_retries + 1):
+            delay = max(self.config.backoff * 2 ** (attempt - 1), server_wait or 0.0) if attempt else 0.0
+            left = deadline - time.monotonic() if deadline is not None else None  # the decision's budget
+            if left is not None and left <= delay:
+                errors.append(f"decision budget spent after {attempt} attempt(s) (llm.decision_budget)")
+                return LLMReply(None, error="; ".join(errors), attempts=attempt, latency=time.monotonic() - started)
             if attempt:
-                delay = self.config.backoff * 2 ** (attempt - 1)  # backoff, doubling per retry
-                self.sleep(max(delay, server_wait or 0.0))  # the server's demand wins when longer
+                self.sleep(delay)  # backoff doubling per retry; the server's demand wins when longer
+            timeout = self.config.timeout if left is None else max(0.1, min(self.config.timeout, left - delay))
             try:
                 response = litellm.completion(
                     model=self.config.model,
@@ -188,7 +201,7 @@ class LLMClient:
                     api_key=self._api_key(),
                     temperature=self.config.temperature,
                     max_tokens=self.config.max_tokens,
-                    timeout=self.config.timeout,
+                    timeout=timeout,
                     num_retries=0,  # retries are ours (logged, with our backoff)
                     max_retries=0,
                 )

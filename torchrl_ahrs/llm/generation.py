@@ -1,13 +1,42 @@
-"""Where the generator commands (``generate_rules``, ``generate_aux``) write what an LLM produced."""
+"""What the generator commands (``generate_rules``, ``generate_aux``) share: their LLM and task from the
+config, the code blocks of an answer, and where they write what the LLM produced."""
 
 from __future__ import annotations
 
 import datetime
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from omegaconf import OmegaConf
+
+from torchrl_ahrs.llm.client import LLMConfig
+
+_CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)
+
+
+class GenerationError(RuntimeError):
+    """A generator command that cannot ask its LLM; the message says why."""
+
+
+def llm_and_task(cfg: Any, command: str) -> tuple[LLMConfig, dict[str, Any]]:
+    """The LLM settings and the resolved task section of a composed config; refuses a config without an
+    LLM (``llm=offline``), naming ``command`` and how to give one."""
+    llm_cfg = LLMConfig.from_cfg(OmegaConf.to_container(cfg.llm, resolve=True))
+    if not llm_cfg.model and not llm_cfg.replay_from:
+        raise GenerationError(f"{command} needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)")
+    return llm_cfg, cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
+
+
+def extract_code_blocks(text: str) -> list[str]:
+    r"""Fenced code blocks of an answer (```python ... ```); the whole text if there is no fence.
+
+    Example:
+        >>> extract_code_blocks("a\n```python\nx = 1\n```\nb\n```\ny = 2\n```"), extract_code_blocks("z = 3")
+        (['x = 1\n', 'y = 2\n'], ['z = 3'])
+    """
+    blocks = _CODE_BLOCK.findall(text)
+    return blocks if blocks else [text]
 
 
 def generation_output_dir(cfg: Any, kind: str) -> Path:

@@ -23,6 +23,26 @@ def _by_method(runs: list[Run]) -> dict[str, list[Run]]:
     return dict(sorted(grouped.items(), key=lambda item: method_rank(item[0])))
 
 
+def _plot_band(axis, grid: np.ndarray, mean: np.ndarray, std: np.ndarray, label: str, alpha: float) -> None:
+    """The mean as a line and mean ± std as a band of the line's colour."""
+    line = axis.plot(grid, mean, label=label)[0]
+    axis.fill_between(grid, mean - std, mean + std, color=line.get_color(), alpha=alpha)
+
+
+def _finish_axis(axis, fontsize: str) -> None:
+    """Light grid; a legend only when something was labelled (matplotlib warns on an empty one)."""
+    axis.grid(alpha=0.3)
+    if axis.get_legend_handles_labels()[0]:
+        axis.legend(fontsize=fontsize)
+
+
+def _save(figure, path: Path, dpi: int) -> Path:
+    figure.tight_layout()
+    figure.savefig(path, dpi=dpi)
+    plt.close(figure)  # pyplot keeps every open figure alive otherwise
+    return path
+
+
 def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "return/total") -> Path | None:
     """``scalar`` against frames for one task: per method the mean over its finished seeds (line) and
     ± one std over seeds (band), curves interpolated onto a common frame grid; None without a finished run."""
@@ -34,16 +54,10 @@ def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "retur
         grid, mean, std = mean_band([run.curves[scalar] for run in group])
         if grid.size == 0:
             continue
-        line = axis.plot(grid, mean, label=f"{method} (n={len(group)})")[0]
-        axis.fill_between(grid, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+        _plot_band(axis, grid, mean, std, f"{method} (n={len(group)})", alpha=0.2)
     axis.set(title=f"{task}: {scalar} (mean ± std over seeds)", xlabel="frames", ylabel="episode return")
-    axis.grid(alpha=0.3)
-    if axis.get_legend_handles_labels()[0]:
-        axis.legend(fontsize="small")
-    figure.tight_layout()
-    figure.savefig(path, dpi=90)
-    plt.close(figure)
-    return path
+    _finish_axis(axis, "small")
+    return _save(figure, path, dpi=90)
 
 
 def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
@@ -64,25 +78,17 @@ def weight_timelines(task: str, runs: list[Run], path: Path) -> Path | None:
         for name in components:
             grid, mean, std = mean_band([run.curves[name] for run in group if name in run.curves])
             if grid.size:
-                line = weight_axis.plot(grid, mean, label=name.split("/", 1)[1])[0]
-                weight_axis.fill_between(grid, mean - std, mean + std, color=line.get_color(), alpha=0.15)
+                _plot_band(weight_axis, grid, mean, std, name.split("/", 1)[1], alpha=0.15)
         weight_axis.set(title=f"{task} / {method}: weights", ylabel="w_k")
-        weight_axis.grid(alpha=0.3)
-        if weight_axis.get_legend_handles_labels()[0]:
-            weight_axis.legend(fontsize="x-small")
+        _finish_axis(weight_axis, "x-small")
         for offset, run in enumerate(sorted(group, key=lambda r: r.seed)):
             applied = [d for d in run.decisions if d.get("applied") and d.get("rule_id") is not None]
             frames = [d["frames"] for d in applied]
             rules = np.asarray([d["rule_id"] for d in applied], dtype=float) + 0.12 * (offset - 1)
             rule_axis.scatter(frames, rules, s=12, label=f"seed {run.seed}")
         rule_axis.set(xlabel="frames", ylabel="rule id")
-        rule_axis.grid(alpha=0.3)
-        if rule_axis.get_legend_handles_labels()[0]:
-            rule_axis.legend(fontsize="x-small")
-    figure.tight_layout()
-    figure.savefig(path, dpi=80)
-    plt.close(figure)
-    return path
+        _finish_axis(rule_axis, "x-small")
+    return _save(figure, path, dpi=80)
 
 
 def component_returns(task: str, runs: list[Run], path: Path) -> Path | None:
@@ -105,7 +111,4 @@ def component_returns(task: str, runs: list[Run], path: Path) -> Path | None:
     axis.set(title=f"{task}: final return per component (mean ± std over seeds)", ylabel="return")
     axis.axhline(0.0, color="black", linewidth=0.6)
     axis.legend(fontsize="small")
-    figure.tight_layout()
-    figure.savefig(path, dpi=90)
-    plt.close(figure)
-    return path
+    return _save(figure, path, dpi=90)

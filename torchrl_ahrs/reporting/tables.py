@@ -25,7 +25,7 @@ def cells(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
 def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
     """One row per (task, method): final return over the finished seeds (mean, sample std, bootstrap
     95 % CI of the mean, IQM) and its change against PPO's mean on the same task in % of |PPO|."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for (task, method), group in cells(runs).items():
         finals = [r.final_return for r in group if r.ok]
         mean, std = mean_std(finals)
@@ -109,7 +109,7 @@ def llm_rows(runs: list[Run]) -> list[dict[str, Any]]:
         if not calls:
             continue
         latency = np.asarray([float(c.get("latency") or 0.0) for c in calls])
-        costs = [c.get("cost") for c in calls if c.get("cost") is not None]
+        costs = [c["cost"] for c in calls if c.get("cost") is not None]
         rows.append(
             {
                 "task": task,

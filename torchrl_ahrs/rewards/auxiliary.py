@@ -31,10 +31,9 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.data import Composite, Unbounded
-from torchrl.envs.transforms import Transform
+from torchrl.data import Composite
 
-from torchrl_ahrs.rewards.components import TOTAL
+from torchrl_ahrs.rewards.components import TOTAL, ComponentLeaves
 
 AUX = "aux"
 TOTAL_AUX = "total_aux"
@@ -130,7 +129,7 @@ def load_aux_function(path: str | Path, expected_digest: str | None = None) -> A
     return functions[AUX_FUNCTION]
 
 
-class AuxiliaryReward(Transform):
+class AuxiliaryReward(ComponentLeaves):
     """Writes ``("reward", "aux")`` = ``scale * fn(obs)`` and ``("reward", "total_aux")`` = total + aux.
 
     Append it after :class:`~torchrl_ahrs.rewards.RewardComponents` (the reward must already be a tree)
@@ -155,6 +154,7 @@ class AuxiliaryReward(Transform):
     """
 
     def __init__(self, fn: AuxFn, scale: float = 1.0, source: str = "<function>", reward_key: str = "reward"):
+        self.leaf_names = [AUX, TOTAL_AUX]  # component leaves (observation spec), like RewardComponents'
         super().__init__(in_keys=[reward_key], out_keys=[(reward_key, AUX), (reward_key, TOTAL_AUX)])
         self.fn = fn
         self.scale = float(scale)
@@ -190,16 +190,10 @@ class AuxiliaryReward(Transform):
         tree.set(TOTAL_AUX, tree.get(TOTAL) + aux)  # r_total_aux = r_total + r_aux
         return next_tensordict
 
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return tensordict_reset
-
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
-        tree = reward_spec[self.reward_key]
-        if not isinstance(tree, Composite):
+        # the leaves themselves are declared in the observation spec (ComponentLeaves); the total stays
+        if not isinstance(reward_spec.get(self.reward_key, None), Composite):
             raise KeyError(
                 f"AuxiliaryReward needs the reward tree ({self.reward_key!r}, ...); append RewardComponents first"
             )
-        native = tree[TOTAL]
-        for name in (AUX, TOTAL_AUX):
-            tree[name] = Unbounded(shape=native.shape, dtype=torch.float32, device=native.device)
         return reward_spec

@@ -7,7 +7,10 @@ ready :class:`RuleScheduler`:
   ``bandit`` | ``llm`` | ``direct``. ``llm`` and ``direct`` need ``cfg.llm.model``; with ``llm=offline``
   (no model) the ``bandit`` selector stands in and the run says so at start and in every decision.
 * ``cfg.scheduler``: ``interval``, ``history_length``, ``base_weight``, ``rules`` (a repository file,
-  null = the shipped one), ``blocking``.
+  null = the shipped one), ``blocking`` (``false`` hides LLM latency: the decision is applied when it
+  arrives, training goes on meanwhile).
+* ``cfg.llm.model`` set under ``llm=offline`` is refused at start (it would never be called);
+  ``cfg.llm.decision_budget`` bounds one blocking decision (all attempts and the correction) in seconds.
 * ``cfg.method.initial_weights``: weights before the first decision (null = ``base_weight``).
 """
 
@@ -17,10 +20,10 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from omegaconf import OmegaConf
-
+from torchrl_ahrs.common.config_access import select as _select
+from torchrl_ahrs.scheduling.llm_selectors import DirectWeightSelector, LLMRuleSelector
 from torchrl_ahrs.scheduling.rules import Rule, RuleRepository, load_repository, normalise_scores
-from torchrl_ahrs.scheduling.scheduler import RuleScheduler
+from torchrl_ahrs.scheduling.scheduler import RuleScheduler, _components_of
 from torchrl_ahrs.scheduling.selectors import (
     BanditSelector,
     ConstantSelector,
@@ -37,7 +40,9 @@ __all__ = [
     "ConstantSelector",
     "Decision",
     "DecisionContext",
+    "DirectWeightSelector",
     "FixedSelector",
+    "LLMRuleSelector",
     "RandomSelector",
     "ReturnStatistics",
     "Rule",
@@ -55,11 +60,6 @@ log = logging.getLogger(__name__)
 LLM_SELECTORS = ("llm", "direct")
 
 
-def _select(cfg: Any, key: str, default: Any = None) -> Any:
-    value = OmegaConf.select(cfg, key, default=default) if OmegaConf.is_config(cfg) else default
-    return default if value is None else value
-
-
 def llm_is_offline(cfg: Any) -> bool:
     """True when no LLM is configured (``llm=offline`` or no ``llm`` section / no ``llm.model``)."""
     return _select(cfg, "llm.name", "offline") == "offline" or not _select(cfg, "llm.model")
@@ -71,6 +71,12 @@ def build_selector(
     """The selector named by ``cfg.method.selector`` and a note to attach to every decision ('' if none)."""
     name = _select(cfg, "method.selector", "constant")
     seed = int(_select(cfg, "seed", 0))
+    model, llm_name = _select(cfg, "llm.model"), _select(cfg, "llm.name", "offline")
+    if model and llm_name == "offline":  # a model that would silently not be called
+        raise ValueError(
+            f"llm.model={model} is set but llm=offline never calls a model; choose llm=openai, llm=ollama "
+            "or llm=replay (each takes llm.model), or drop llm.model"
+        )
     note = ""
     if name in LLM_SELECTORS and llm_is_offline(cfg):
         note = f"llm=offline: the bandit selector stands in for the '{name}' selector (no LLM is called)"
@@ -99,9 +105,18 @@ def build_selector(
 
 
 def build_scheduler(
-    cfg: Any, estimator: Any, components: list[str], run_dir: Path, logger: Any = None
+    cfg: Any,
+    estimator: Any,
+    components: list[str] | None = None,
+    run_dir: Path | None = None,
+    logger: Any = None,
 ) -> RuleScheduler:
-    """A :class:`RuleScheduler` configured from the whole Hydra config.
+    """A :class:`RuleScheduler` configured from the whole Hydra config (or a plain dict).
+
+    Every key has a default (``method.selector=constant``, ``scheduler.interval=100``,
+    ``scheduler.base_weight=0.5``, ``scheduler.history_length=5``, ``scheduler.blocking=true``,
+    the shipped rules), so ``build_scheduler({}, gae)`` works; ``components`` default to the
+    estimator's. ``method.initial_weights: null`` installs ``base_weight`` for every component.
 
     Example:
         >>> import torch
@@ -114,21 +129,27 @@ def build_scheduler(
         >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"], run_dir=None)
         >>> sched.selector.name, sched.interval, sched.weights.tolist()
         ('fixed', 2, [0.5, 0.5])
+        >>> build_scheduler({"method": {"selector": "bandit"}}, Estimator(), ["a", "b"]).selector.name
+        'bandit'
     """
+    components = _components_of(estimator, components)
     rules_path = _select(cfg, "scheduler.rules")
     repository = load_repository(rules_path, validate=rules_path is not None)
     run_dir = Path(run_dir) if run_dir is not None else None
     selector, note = build_selector(cfg, repository, list(components), run_dir)
     initial = _select(cfg, "method.initial_weights")
+    base_weight = float(_select(cfg, "scheduler.base_weight", 0.5))
+    if initial is None:  # the config's documented meaning of null: base_weight for every component
+        initial = [base_weight] * len(components)
     scheduler = RuleScheduler(
         estimator,
         list(components),
         repository,
         selector,
         interval=int(_select(cfg, "scheduler.interval", 100)),
-        base_weight=float(_select(cfg, "scheduler.base_weight", 0.5)),
+        base_weight=base_weight,
         history_length=int(_select(cfg, "scheduler.history_length", 5)),
-        initial_weights=list(initial) if initial is not None else None,
+        initial_weights=list(initial),
         blocking=bool(_select(cfg, "scheduler.blocking", True)),
         logger=logger,
         run_dir=run_dir,

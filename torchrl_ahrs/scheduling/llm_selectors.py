@@ -5,10 +5,21 @@ corrective retry (the answer and the reason are sent back); if that fails too, o
 fails (timeout, HTTP errors after the client's retries), the previous rule stays in force (its weights
 are recomputed on the new statistics; before any rule, the weights stay) and the decision note says
 what happened. Every call, including the corrective one, is a line in ``llm_calls.jsonl``.
+
+One decision, corrective retry included, is bounded by ``llm.decision_budget`` seconds in total (the
+client's attempts and backoff stop when it is spent). To keep training while the LLM thinks, run the
+scheduler with ``blocking=False`` (``scheduler.blocking=false``).
+
+Without Hydra, build a selector from a model string; the scheduler supplies the components,
+``base_weight`` and ``interval`` (given twice they could disagree)::
+
+    selector = LLMRuleSelector.from_model("openai/gpt-4o")          # or api_base="http://host:port/v1"
+    scheduler = RuleScheduler(gae, selector=selector, interval=10)  # fills base_weight/interval/components
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -19,7 +30,7 @@ from omegaconf import OmegaConf
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig
 from torchrl_ahrs.llm.prompts import correction_message, direct_weights_prompt, rule_selection_prompt
-from torchrl_ahrs.scheduling.rules import RuleRepository
+from torchrl_ahrs.scheduling.rules import RuleRepository, load_repository
 from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
 
 
@@ -27,13 +38,37 @@ class _LLMSelectorBase(Selector):
     expected = ""
 
     def __init__(
-        self, client: LLMClient, task: Mapping[str, Any], components: list[str], base_weight: float, interval: int
+        self,
+        client: LLMClient,
+        task: Mapping[str, Any] | None = None,
+        components: list[str] | None = None,
+        base_weight: float | None = None,
+        interval: int | None = None,
     ):
+        # components, base_weight and interval left None are filled in by the RuleScheduler
         self.client = client
-        self.task = task
-        self.components = list(components)
+        self.task = dict(task or {})
+        self.components = list(components) if components is not None else None
         self.base_weight = base_weight
         self.interval = interval
+
+    @staticmethod
+    def client_for(
+        model: str, api_base: str | None = None, run_dir: str | Path | None = None, **options: Any
+    ) -> LLMClient:
+        """An :class:`LLMClient` for ``model`` (a litellm string); ``options`` are :class:`LLMConfig` fields."""
+        if not model:
+            raise ValueError("an LLM selector needs a model string, e.g. 'openai/gpt-4o'")
+        return LLMClient(LLMConfig(name="python", model=model, api_base=api_base, **options), run_dir=run_dir)
+
+    def settings(self) -> tuple[list[str], float, int]:
+        """``(components, base_weight, interval)``; unset ones are an error naming the fix."""
+        if self.components is None or self.base_weight is None or self.interval is None:
+            raise ValueError(
+                f"{type(self).__name__} has no components/base_weight/interval yet: hand it to a RuleScheduler "
+                "(which fills them in) or pass them to the constructor"
+            )
+        return self.components, self.base_weight, self.interval
 
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
         raise NotImplementedError
@@ -55,8 +90,10 @@ class _LLMSelectorBase(Selector):
         return Decision(self.name, note=f"{why}; no rule yet, weights kept")
 
     def select(self, context: DecisionContext) -> Decision:
+        budget = self.client.config.decision_budget
+        deadline = time.monotonic() + budget if budget is not None else None  # one budget per decision
         messages = self.messages(context)
-        reply = self.client.complete(messages, purpose=self.name, parser=self.parse)
+        reply = self.client.complete(messages, purpose=self.name, parser=self.parse, deadline=deadline)
         if reply.text is None:
             return self.fallback(context, f"LLM call failed after {reply.attempts} attempt(s): {reply.error}")
         if reply.parse_error is None:
@@ -67,7 +104,7 @@ class _LLMSelectorBase(Selector):
             {"role": "assistant", "content": reply.text},
             correction_message(first_error, self.expected),
         ]
-        second = self.client.complete(retry, purpose=f"{self.name}-correction", parser=self.parse)
+        second = self.client.complete(retry, purpose=f"{self.name}-correction", parser=self.parse, deadline=deadline)
         if second.text is not None and second.parse_error is None:
             return self.decision(second.parsed, f"LLM answered after a corrective retry (first answer: {first_error})")
         why = second.parse_error if second.text is not None else f"call failed: {second.error}"
@@ -87,20 +124,36 @@ class LLMRuleSelector(_LLMSelectorBase):
 
     name = "llm"
 
-    def __init__(self, client, repository: RuleRepository, task, components, base_weight, interval):
+    def __init__(self, client, repository: RuleRepository, task=None, components=None, base_weight=None, interval=None):
         super().__init__(client, task, components, base_weight, interval)
         self.repository = repository
         self.expected = f"~[N]~ with N one of 1..{len(repository)}"
 
+    @classmethod
+    def from_model(
+        cls,
+        model: str,
+        api_base: str | None = None,
+        *,
+        repository: RuleRepository | None = None,
+        task: Mapping[str, Any] | None = None,
+        run_dir: str | Path | None = None,
+        **options: Any,
+    ) -> LLMRuleSelector:
+        """The AHRS selector on ``model`` over ``repository`` (default: the shipped rules), no Hydra.
+
+        Example:
+            >>> selector = LLMRuleSelector.from_model("openai/gpt-4o", api_base="http://127.0.0.1:9/v1")
+            >>> selector.client.config.model, len(selector.repository) == len(load_repository()), selector.interval
+            ('openai/gpt-4o', True, None)
+        """
+        client = cls.client_for(model, api_base, run_dir, **options)
+        return cls(client, repository if repository is not None else load_repository(), task)
+
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
+        components, base_weight, interval = self.settings()
         return rule_selection_prompt(
-            self.task,
-            self.components,
-            self.repository.describe(),
-            len(self.repository),
-            context,
-            self.base_weight,
-            self.interval,
+            self.task, components, self.repository.describe(), len(self.repository), context, base_weight, interval
         )
 
     def parse(self, text: str) -> int:
@@ -121,15 +174,30 @@ class DirectWeightSelector(_LLMSelectorBase):
 
     name = "direct"
 
-    def __init__(self, client, task, components, base_weight, interval):
-        super().__init__(client, task, components, base_weight, interval)
-        self.expected = f"~[w1, ..., w{len(components)}]~ with {len(components)} non-negative numbers"
+    @classmethod
+    def from_model(
+        cls,
+        model: str,
+        api_base: str | None = None,
+        *,
+        task: Mapping[str, Any] | None = None,
+        run_dir: str | Path | None = None,
+        **options: Any,
+    ) -> DirectWeightSelector:
+        """The AHRS-D selector on ``model``, no Hydra (see :meth:`LLMRuleSelector.from_model`)."""
+        return cls(cls.client_for(model, api_base, run_dir, **options), task)
+
+    @property
+    def expected(self) -> str:  # type: ignore[override]
+        k = len(self.components or [])
+        return f"~[w1, ..., w{k}]~ with {k} non-negative numbers"
 
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
-        return direct_weights_prompt(self.task, self.components, context, self.base_weight, self.interval)
+        components, base_weight, interval = self.settings()
+        return direct_weights_prompt(self.task, components, context, base_weight, interval)
 
     def parse(self, text: str) -> list[float]:
-        return parse_weights_answer(text, len(self.components))
+        return parse_weights_answer(text, len(self.components or []))
 
     def decision(self, parsed: list[float], note: str) -> Decision:
         return Decision(self.name, weights=torch.tensor(parsed, dtype=torch.float32), note=note)
@@ -141,12 +209,12 @@ class DirectWeightSelector(_LLMSelectorBase):
 def build_llm_selector(
     name: str, cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
 ) -> Selector:
-    """``llm`` or ``direct`` from the Hydra config (``cfg.llm``, ``cfg.task``, ``cfg.scheduler``)."""
+    """``llm`` or ``direct`` from the config's ``llm`` and ``task`` sections (a Hydra config or a dict);
+    ``base_weight`` and ``interval`` come from the scheduler that receives the selector."""
+    cfg = cfg if OmegaConf.is_config(cfg) else OmegaConf.create(dict(cfg))
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
     client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
-    task = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
-    base_weight = float(cfg.scheduler.base_weight)
-    interval = int(cfg.scheduler.interval)
+    task: Any = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
     if name == "llm":
-        return LLMRuleSelector(client, repository, task, components, base_weight, interval)
-    return DirectWeightSelector(client, task, components, base_weight, interval)
+        return LLMRuleSelector(client, repository, task, components)
+    return DirectWeightSelector(client, task, components)

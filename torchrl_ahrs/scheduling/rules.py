@@ -181,7 +181,7 @@ def _parse_docstring(key: str, docstring: str | None) -> tuple[str, str, str]:
 def rules_from_source(source: str, filename: str = "<rules>") -> list[Rule]:
     """Rules of a repository source text (static sandbox check + restricted execution)."""
     functions = load_functions(source, filename)
-    rules = []
+    rules: list[Rule] = []
     for key, fn in functions.items():
         if len(inspect.signature(fn).parameters) != RULE_ARITY:
             continue  # a helper, not a rule

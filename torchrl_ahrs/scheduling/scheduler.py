@@ -35,9 +35,9 @@ from tensordict import TensorDictBase
 from torchrl.trainers import TrainerHookBase
 
 from torchrl_ahrs.llm.client import FatalSelectorError
-from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
-from torchrl_ahrs.scheduling.rules import RuleRepository, normalise_direct
-from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
+from torchrl_ahrs.rewards.components import EPISODE_REWARD, TOTAL, finished_episode_returns
+from torchrl_ahrs.scheduling.rules import RuleRepository, load_repository, normalise_direct
+from torchrl_ahrs.scheduling.selectors import BanditSelector, Decision, DecisionContext, Selector
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 log = logging.getLogger(__name__)
@@ -45,7 +45,7 @@ DECISIONS_FILE = "scheduler_decisions.jsonl"
 
 
 class WeightedEstimator(Protocol):
-    """What the scheduler needs from the advantage estimator (``WeightedMultiGAE``)."""
+    """What the scheduler needs from the advantage estimator (``WeightedMultiGAE``); ``components`` optional."""
 
     weights: torch.Tensor
 
@@ -55,15 +55,20 @@ class WeightedEstimator(Protocol):
 class RuleScheduler(TrainerHookBase):
     """Picks weight rules during training and installs the weights in the advantage estimator.
 
+    It reads each finished episode's component returns at ``("next", "episode_reward", c)`` (where
+    :class:`~torchrl_ahrs.rewards.ComponentRewardSum` writes them); ``set_keys(episode_reward=...)``
+    points it elsewhere (e.g. ``"episode"`` for ``RewardSum(out_keys=[("episode", c), ...])``).
+
     Args:
-        estimator: object with ``weights [K]`` and ``set_weights(weights [K])``.
-        components: the K reward components, in the estimator's order.
-        repository: the rules a selector may pick.
-        selector: decides at every decision point (constant, fixed, random, bandit, llm, direct).
+        estimator: object with ``weights [K]`` and ``set_weights(weights [K])`` (a ``WeightedMultiGAE``).
+        components: the K reward components, in the estimator's order (default: ``estimator.components``).
+        repository: the rules a selector may pick (default: the selector's, else the shipped repository).
+        selector: decides at every decision point (constant, fixed, random, bandit, llm, direct);
+            default a :class:`~torchrl_ahrs.scheduling.BanditSelector` over ``repository``.
         interval: training iterations between decisions.
         base_weight: ``w_k = base_weight + n_k``.
         history_length: L, earlier summaries shown to rules and selectors.
-        initial_weights: weights ``[K]`` installed at construction (default ``base_weight`` each).
+        initial_weights: weights ``[K]`` installed at construction (default: keep the estimator's).
         blocking: ``False`` runs the selector in a background thread.
         logger: optional TorchRL logger (``log_scalar``) for decision scalars.
         run_dir: where ``scheduler_decisions.jsonl`` is written (one line per decision point).
@@ -77,7 +82,8 @@ class RuleScheduler(TrainerHookBase):
         ...     weights = torch.ones(2)
         ...     def set_weights(self, w): self.weights = w.clone()
         >>> repo, est = load_repository(), Estimator()
-        >>> sched = RuleScheduler(est, ["a", "b"], repo, FixedSelector(repo, "mean_returns_only"), interval=1)
+        >>> sched = RuleScheduler(est, ["a", "b"], repo, FixedSelector(repo, "mean_returns_only"), interval=1,
+        ...                       initial_weights=[0.5, 0.5])
         >>> est.weights.tolist()
         [0.5, 0.5]
         >>> sched.statistics.add(torch.tensor([[1.0, 3.0]]))
@@ -90,9 +96,9 @@ class RuleScheduler(TrainerHookBase):
     def __init__(
         self,
         estimator: WeightedEstimator,
-        components: list[str],
-        repository: RuleRepository,
-        selector: Selector,
+        components: list[str] | None = None,
+        repository: RuleRepository | None = None,
+        selector: Selector | None = None,
         interval: int = 100,
         base_weight: float = 0.5,
         history_length: int = 5,
@@ -105,32 +111,43 @@ class RuleScheduler(TrainerHookBase):
         if interval < 1:
             raise ValueError(f"interval must be at least 1, got {interval}")
         self.estimator = estimator
-        self.components = list(components)
+        self.components = _components_of(estimator, components)
+        if repository is None:
+            repository = getattr(selector, "repository", None) or load_repository()
         self.repository = repository
-        self.selector = selector
+        self.selector = selector if selector is not None else BanditSelector(repository)
+        self.episode_reward_key: Any = EPISODE_REWARD
         self.interval = int(interval)
         self.base_weight = float(base_weight)
         self.blocking = blocking
         self.logger = logger
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.note = note
+        _share_settings(self.selector, components=self.components, base_weight=self.base_weight, interval=self.interval)
         self.statistics = ReturnStatistics(len(self.components), history_length)
         self.iteration = 0
         self.frames = 0
         self.decision_index = 0
         self.rule_id: int | None = None
-        if initial_weights is None:
-            initial = torch.full((len(self.components),), self.base_weight)
-        else:
-            initial = torch.as_tensor(initial_weights, dtype=torch.float32).reshape(-1)
+        keep = initial_weights is None  # the estimator's weights stand until the first decision
+        initial = torch.as_tensor(estimator.weights if keep else initial_weights, dtype=torch.float32)
+        initial = initial.detach().cpu().reshape(-1).clone()
         if initial.shape != (len(self.components),) or not torch.isfinite(initial).all():
-            raise ValueError(f"initial_weights must be {len(self.components)} finite numbers, got {initial.tolist()}")
+            what = "the estimator's weights" if keep else "initial_weights"
+            raise ValueError(f"{what} must be {len(self.components)} finite numbers, got {initial.tolist()}")
         self.weights = initial.float()
-        self.estimator.set_weights(self.weights.clone())
+        if not keep:
+            self.estimator.set_weights(self.weights.clone())
         self._executor: ThreadPoolExecutor | None = None
         self._pending: tuple[Future, DecisionContext] | None = None
         if note:
             log.warning("RuleScheduler: %s", note)
+
+    def set_keys(self, *, episode_reward: Any = None) -> RuleScheduler:
+        """Where the episode returns are read: ``("next", *episode_reward, c)``; returns ``self``."""
+        if episode_reward is not None:
+            self.episode_reward_key = episode_reward
+        return self
 
     # ---------------------------------------------------------------- trainer hooks
     def register(self, trainer, name: str = "rule_scheduler") -> None:
@@ -143,10 +160,12 @@ class RuleScheduler(TrainerHookBase):
     def observe_batch(self, batch: TensorDictBase) -> dict[str, float]:
         """Feeds the batch's finished episodes to the statistics; returns scalars for the trainer's log."""
         self.frames += batch.numel()
-        returns = finished_episode_returns(batch, self.components)
+        key = self.episode_reward_key
+        returns = finished_episode_returns(batch, self.components, key)  # [M, K]; a missing key is named
         totals = None
-        if TOTAL not in self.components and ("next", "episode_reward", TOTAL) in batch.keys(True, True):
-            totals = finished_episode_returns(batch, [TOTAL])
+        root = (key,) if isinstance(key, str) else tuple(key)
+        if TOTAL not in self.components and ("next", *root, TOTAL) in batch.keys(True, True):
+            totals = finished_episode_returns(batch, [TOTAL], key)
         elif TOTAL in self.components:
             totals = returns[:, self.components.index(TOTAL)]
         self.statistics.add(returns, totals)
@@ -225,7 +244,7 @@ class RuleScheduler(TrainerHookBase):
                 weights = self.base_weight + normalise_direct(decision.weights)  # w = base + x / sum x
                 rule_id = None
             else:
-                rule = self.repository[decision.rule_id]
+                rule = self.repository[decision.rule_id]  # type: ignore[index]  # set: keeps_weights returned above
                 weights = rule.weights(context.mean, context.var, context.history, self.weights, self.base_weight)
                 rule_id = rule.id
         except Exception as error:  # noqa: BLE001 (a rule failure must not stop training)
@@ -309,3 +328,28 @@ class RuleScheduler(TrainerHookBase):
             self._collect_pending()
             self._executor = None
         self.selector.close()
+
+
+def _components_of(estimator: Any, components: list[str] | None) -> list[str]:
+    """The K components: given, or the estimator's; both given must agree."""
+    own = getattr(estimator, "components", None)
+    if components is None:
+        if own is None:
+            raise ValueError("RuleScheduler needs components=[...] (the estimator has no .components)")
+        return list(own)
+    if own is not None and list(own) != list(components):
+        raise ValueError(f"components {list(components)} differ from the estimator's {list(own)}")
+    return list(components)
+
+
+def _share_settings(selector: Any, **settings: Any) -> None:
+    """Gives an LLM selector the scheduler's components/base_weight/interval (shown in its prompts);
+    values the selector already holds must agree, so the prompt cannot describe another schedule."""
+    for name, value in settings.items():
+        if not hasattr(selector, name):
+            continue
+        own = getattr(selector, name)
+        if own is None:
+            setattr(selector, name, list(value) if isinstance(value, list) else value)
+        elif own != value:
+            raise ValueError(f"the selector's {name}={own!r} differs from the scheduler's {name}={value!r}")

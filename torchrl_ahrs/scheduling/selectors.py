@@ -92,6 +92,7 @@ class FixedSelector(Selector):
     name = "fixed"
 
     def __init__(self, repository: RuleRepository, rule: str | int):
+        self.repository = repository  # the scheduler applies this selector's rule ids from it
         self.rule_id = repository.get(rule).id
 
     def select(self, context: DecisionContext) -> Decision:
@@ -111,6 +112,7 @@ class RandomSelector(Selector):
     name = "random"
 
     def __init__(self, repository: RuleRepository, seed: int = 0):
+        self.repository = repository
         self.rule_ids = repository.ids
         self.generator = torch.Generator().manual_seed(seed)
 
@@ -159,6 +161,7 @@ class BanditSelector(Selector):
     def __init__(self, repository: RuleRepository, seed: int = 0, discount: float = 0.9, exploration: float = 1.0):
         if not 0.0 < discount <= 1.0:
             raise ValueError(f"discount must be in (0, 1], got {discount}")
+        self.repository = repository
         self.rule_ids = repository.ids
         self.discount = discount
         self.exploration = exploration

@@ -147,6 +147,8 @@ class LinearLRDecay(TrainerHookBase):
         self.trainer: Trainer | None = None
 
     def __call__(self) -> None:
+        if self.trainer is None:  # called directly: there are no frames to decay against
+            raise RuntimeError("LinearLRDecay runs as a trainer hook: register(trainer) first")
         progress = min(1.0, self.trainer.collected_frames / self.total_frames)
         for group, initial_lr in zip(self.optimizer.param_groups, self.initial_lrs, strict=True):
             group["lr"] = initial_lr * (1.0 - progress)  # lr_i = lr_0 (1 - f_i / F)
@@ -190,10 +192,9 @@ class ComponentReturnLog(TrainerHookBase):
             metrics["episodes"] = float(returns.shape[0])
             for name, column in zip(self.tracked, returns.mean(0).tolist(), strict=True):
                 metrics[f"return/{name}"] = column
-            metrics["log_pbar"] = True
         for name, weight in zip(self.components, self.estimator.weights.tolist(), strict=True):
             metrics[f"weight/{name}"] = weight
-        self.latest.update({key: value for key, value in metrics.items() if key != "log_pbar"})
+        self.latest.update(metrics)
         return metrics
 
     def state_dict(self) -> dict[str, Any]:

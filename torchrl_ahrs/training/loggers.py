@@ -38,9 +38,9 @@ class FanoutLogger(Logger):
     def close(self) -> None:
         """Flushes and closes every backend that holds a writer (TensorBoard's event file thread)."""
         for logger in self.loggers:
-            writer = getattr(logger, "experiment", None)
-            if hasattr(writer, "close"):
-                writer.close()
+            close = getattr(getattr(logger, "experiment", None), "close", None)
+            if callable(close):
+                close()
 
     def log_video(self, name: str, video, step: int | None = None, **kwargs) -> None:
         for logger in self.loggers:

@@ -2,30 +2,80 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import torch
 from tensordict import TensorDictBase
 from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.utils import ValueEstimators, default_value_kwargs
+from torchrl.objectives.value import ValueEstimatorBase
+
+from torchrl_ahrs.value.gae import WeightedMultiGAE
 
 
 class HybridClipPPOLoss(ClipPPOLoss):
-    """``ClipPPOLoss`` that refuses an un-mixed ``[*B, K]`` advantage.
+    """``ClipPPOLoss`` on the mixed advantage of a :class:`~torchrl_ahrs.value.WeightedMultiGAE`.
 
     ``ClipPPOLoss`` silently broadcasts an advantage with K columns against the ``[*B, 1]`` log-ratio,
     which trains on the *equally weighted* sum and ignores the schedule. Here the advantage must be the
     ``[*B, 1]`` output of :class:`~torchrl_ahrs.value.WeightedMultiGAE`; the critic is regressed on all
-    K columns of ``"value_target"``.
+    K columns of ``"value_target"`` ``[*B, K]``.
+
+    Without a precomputed ``"advantage"`` the loss runs its value estimator, as TorchRL's losses do:
+    either one given with ``make_value_estimator(WeightedMultiGAE(...))``, or, with ``components=``, a
+    ``WeightedMultiGAE`` built on the loss's critic by ``make_value_estimator()`` (TorchRL's GAE defaults
+    ``gamma=0.99, lmbda=0.95`` unless given). ``set_keys(reward=...)`` names the reward *tree*
+    (``"reward"`` by default), whose leaves ``("next", "reward", c)`` are the components.
+
+    Args:
+        actor_network, critic_network: as for ``ClipPPOLoss``; the critic writes ``[*B, K]`` values.
+        components: the K reward components, so the loss can build its own ``WeightedMultiGAE``.
+        weights: initial ``[K]`` weights of that estimator (default ones).
+        **kwargs: forwarded to ``ClipPPOLoss`` (``clip_epsilon``, ``entropy_coeff``, ``critic_coeff``, ...).
 
     Example:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> td = TensorDict({"advantage": torch.zeros(4, 2)}, [4])
-        >>> HybridClipPPOLoss.check_advantage(td, "advantage")  # doctest: +ELLIPSIS
+        >>> from tensordict.nn import NormalParamExtractor, TensorDictModule
+        >>> from torchrl.modules import ProbabilisticActor, TanhNormal
+        >>> from torchrl_ahrs.value import MultiHeadCritic
+        >>> net = torch.nn.Sequential(torch.nn.Linear(3, 2), NormalParamExtractor())
+        >>> actor = ProbabilisticActor(TensorDictModule(net, ["observation"], ["loc", "scale"]),
+        ...                            in_keys=["loc", "scale"], distribution_class=TanhNormal, return_log_prob=True)
+        >>> critic = TensorDictModule(MultiHeadCritic(3, 2, hidden_sizes=[8]), ["observation"], ["state_value"])
+        >>> loss = HybridClipPPOLoss(actor, critic, components=["a", "b"], weights=[1.0, 0.5])
+        >>> td = TensorDict({"observation": torch.randn(4, 5, 3), "next": {
+        ...     "observation": torch.randn(4, 5, 3), "reward": {"a": torch.randn(4, 5, 1), "b": torch.randn(4, 5, 1)},
+        ...     "done": torch.zeros(4, 5, 1, dtype=torch.bool), "terminated": torch.zeros(4, 5, 1, dtype=torch.bool)}},
+        ...     [4, 5])
+        >>> with torch.no_grad():
+        ...     td = actor(td)
+        >>> sorted(k for k in loss(td).keys() if k.startswith("loss"))  # no advantage given: the loss computed it
+        ['loss_critic', 'loss_entropy', 'loss_objective']
+        >>> loss.value_estimator.weights.tolist(), loss.value_estimator(td)["advantage"].shape
+        ([1.0, 0.5], torch.Size([4, 5, 1]))
+        >>> HybridClipPPOLoss.check_advantage(TensorDict({"advantage": torch.zeros(4, 2)}, [4]), "advantage")
         Traceback (most recent call last):
         ...
         ValueError: the advantage has shape (4, 2) ...
     """
 
+    def __init__(
+        self,
+        actor_network,
+        critic_network,
+        *,
+        components: Sequence[str] | None = None,
+        weights: Sequence[float] | torch.Tensor | None = None,
+        **kwargs,
+    ):
+        super().__init__(actor_network, critic_network, **kwargs)
+        self.components = list(components) if components is not None else None
+        self._initial_weights = weights
+
     @staticmethod
     def check_advantage(tensordict: TensorDictBase, key) -> None:
+        """Refuses an advantage with more than one column (``[*B, K]``): it must be mixed first."""
         advantage = tensordict.get(key, None)
         if advantage is not None and advantage.shape[-1] != 1:
             raise ValueError(
@@ -33,6 +83,45 @@ class HybridClipPPOLoss(ClipPPOLoss):
                 f"{advantage.shape[-1]} columns as equal weights; pass the mixed [*B, 1] advantage of "
                 "WeightedMultiGAE (per-component advantages belong in 'advantage_components')"
             )
+
+    def make_value_estimator(self, value_type=None, **hyperparams):
+        """Installs a :class:`WeightedMultiGAE` (given, or built from ``components``); returns ``self``.
+
+        ``value_type`` may be a ``WeightedMultiGAE`` instance, or ``None`` / ``ValueEstimators.GAE`` /
+        ``WeightedMultiGAE`` to build one on the loss's critic with ``hyperparams`` (``gamma``, ``lmbda``,
+        ``normalize_components``, ...). Any other estimator would read the reward tree as one reward, so
+        it is refused.
+        """
+        if isinstance(value_type, ValueEstimatorBase):
+            if not isinstance(value_type, WeightedMultiGAE):
+                raise TypeError(
+                    f"HybridClipPPOLoss needs a WeightedMultiGAE (K components mixed by weights), got "
+                    f"{type(value_type).__name__}"
+                )
+            return super().make_value_estimator(value_type)
+        if value_type not in (None, ValueEstimators.GAE, WeightedMultiGAE):
+            raise NotImplementedError(f"HybridClipPPOLoss supports WeightedMultiGAE only, got {value_type}")
+        if self.components is None:
+            raise ValueError(
+                "HybridClipPPOLoss has no value estimator: pass components=[...] to the loss or call "
+                "loss.make_value_estimator(WeightedMultiGAE(components, gamma=..., lmbda=..., value_network=critic))"
+            )
+        hp = {**default_value_kwargs(ValueEstimators.GAE), **hyperparams}
+        hp.pop("device", None)
+        hp.setdefault("weights", self._initial_weights)
+        estimator = WeightedMultiGAE(self.components, value_network=self.critic_network, **hp)
+        keys = self.tensor_keys
+        estimator.set_keys(
+            advantage=keys.advantage,
+            value_target=keys.value_target,
+            value=keys.value,
+            reward=keys.reward,
+            done=keys.done,
+            terminated=keys.terminated,
+        )
+        self._value_estimator = estimator
+        self.value_type = WeightedMultiGAE
+        return self
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         self.check_advantage(tensordict, self.tensor_keys.advantage)

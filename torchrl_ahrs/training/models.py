@@ -27,6 +27,10 @@ class RunningNorm(nn.Module):
         tensor(True)
     """
 
+    mean: torch.Tensor  # buffers, declared for the type checker (nn.Module.__getattr__ says Tensor | Module)
+    var: torch.Tensor
+    count: torch.Tensor
+
     def __init__(self, size: int, clip: float = 10.0, eps: float = 1e-8):
         super().__init__()
         self.clip = clip
@@ -65,7 +69,7 @@ def build_actor(
     """Gaussian policy squashed into the action bounds (TanhNormal), state-independent scale."""
     action_dim = action_spec.shape[-1]
     loc_net = make_mlp(obs_dim, hidden_sizes, action_dim, activation)
-    nn.init.orthogonal_(loc_net[-1].weight, 0.01)  # small initial actions keep early rollouts near rest
+    nn.init.orthogonal_(loc_net[-1].weight, 0.01)  # type: ignore[arg-type]  # small initial actions keep early rollouts near rest
     # the parameter is the log standard deviation: scale_mapping="exp" maps it to sigma = exp(init_log_std)
     scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=float(init_log_std))
     module = TensorDictModule(nn.Sequential(obs_norm, loc_net, scale), in_keys=[in_key], out_keys=["loc", "scale"])

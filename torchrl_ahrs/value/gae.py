@@ -17,9 +17,11 @@ from torchrl_ahrs.value.functional import mix_advantages, normalize_components, 
 class WeightedMultiGAE(GAE):
     """GAE over K reward components at once, mixed into one advantage for the policy.
 
-    Reads the component leaves ``("next", "reward", c)`` in ``components`` order, stacks them into
-    ``("next", "component_rewards")`` ``[*B, T, K]``, and runs TorchRL's GAE recursion once with a
-    K-column value network (done/terminated are expanded to K). Writes:
+    Keys follow TorchRL's meaning: ``reward`` names the *reward tree* whose leaves
+    ``("next", reward, c)`` ``[*B, T, 1]`` are read in ``components`` order (the layout written by
+    :class:`~torchrl_ahrs.rewards.RewardComponents`). Nothing is written into the tree. TorchRL's GAE
+    recursion runs once on the stack ``[*B, T, K]`` with a K-column value network (done/terminated are
+    expanded to K). Writes:
 
     - ``"advantage_components"`` ``[*B, T, K]``: each component's GAE advantage ``A_k``;
     - ``"value_target"`` ``[*B, T, K]``: each head's regression target;
@@ -30,8 +32,10 @@ class WeightedMultiGAE(GAE):
     unnormalised ``A_k`` stay in ``"advantage_components"``.
 
     ``weights`` is a registered buffer ``[K]`` (checkpointed with the module); replace it any time with
-    :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward_tree``, ``reward``,
-    ``advantage``, ``advantage_components``, ``value_target``, ``value``, ``done``, ``terminated``).
+    :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward``, ``advantage``,
+    ``advantage_components``, ``value_target``, ``value``, ``done``, ``terminated``). A PPO loss uses it
+    through ``loss.make_value_estimator(gae)`` (or :class:`~torchrl_ahrs.training.HybridClipPPOLoss`
+    with ``components=``).
 
     Args:
         components: reward component names; their order is the K axis.
@@ -52,12 +56,14 @@ class WeightedMultiGAE(GAE):
         >>> td = TensorDict({
         ...     "observation": torch.randn(B, T, 3),
         ...     "next": {"observation": torch.randn(B, T, 3),
-        ...              "reward": {"a": torch.randn(B, T, 1), "b": torch.randn(B, T, 1)},
+        ...              "reward": {"total": torch.randn(B, T, 1), "a": torch.randn(B, T, 1), "b": torch.randn(B, T, 1)},
         ...              "done": torch.zeros(B, T, 1, dtype=torch.bool),
         ...              "terminated": torch.zeros(B, T, 1, dtype=torch.bool)}}, [B, T])
         >>> td = gae(td)
-        >>> td["advantage_components"].shape, td["advantage"].shape
-        (torch.Size([4, 8, 2]), torch.Size([4, 8, 1]))
+        >>> td["advantage_components"].shape, td["advantage"].shape, td["next", "reward", "total"].shape
+        (torch.Size([4, 8, 2]), torch.Size([4, 8, 1]), torch.Size([4, 8, 1]))
+        >>> gae.out_keys
+        ['advantage', 'advantage_components', 'value_target']
     """
 
     @dataclass
@@ -67,8 +73,7 @@ class WeightedMultiGAE(GAE):
         advantage_components: NestedKey = "advantage_components"
         value_target: NestedKey = "value_target"
         value: NestedKey = "state_value"
-        reward_tree: NestedKey = "reward"
-        reward: NestedKey = "component_rewards"
+        reward: NestedKey = "reward"  # the reward tree's root: components are ("next", reward, c)
         done: NestedKey = "done"
         terminated: NestedKey = "terminated"
         steps_to_next_obs: NestedKey = "steps_to_next_obs"
@@ -100,6 +105,22 @@ class WeightedMultiGAE(GAE):
     def num_components(self) -> int:
         return len(self.components)
 
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        """The value network's inputs (now and next), every component leaf, done and terminated."""
+        value_in = list(getattr(self.value_network, "in_keys", []))
+        return [
+            *value_in,
+            *self.component_reward_keys(),
+            ("next", self.tensor_keys.done),
+            ("next", self.tensor_keys.terminated),
+            *[("next", *((key,) if isinstance(key, str) else key)) for key in value_in],
+        ]
+
+    @property
+    def out_keys(self) -> list[NestedKey]:
+        return [self.tensor_keys.advantage, self.tensor_keys.advantage_components, self.tensor_keys.value_target]
+
     def set_weights(self, weights: torch.Tensor | Sequence[float]) -> None:
         """Replaces the mixing weights in place; they must be K finite numbers."""
         weights = torch.as_tensor(weights, dtype=self.weights.dtype, device=self.weights.device)
@@ -113,26 +134,51 @@ class WeightedMultiGAE(GAE):
         self.weights.copy_(weights)
 
     def component_reward_keys(self) -> list[tuple]:
-        tree = self.tensor_keys.reward_tree
+        """``[("next", *reward, c) for c in components]``: the leaves read, in K order."""
+        tree = self.tensor_keys.reward
         tree = tree if isinstance(tree, tuple) else (tree,)
         return [("next", *tree, name) for name in self.components]
 
-    @torch.no_grad()
     def forward(self, tensordict: TensorDictBase, **kwargs) -> TensorDictBase:
-        rewards = stack_components([tensordict.get(key) for key in self.component_reward_keys()])  # [*B, T, K]
-        tensordict.set(("next", self.tensor_keys.reward), rewards)
-        super().forward(tensordict, **kwargs)
-        component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
-        tensordict.set(self.tensor_keys.advantage_components, component_advantages)
-        to_mix = normalize_components(component_advantages) if self.normalize_components else component_advantages
-        tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
+        """Writes the K component advantages, the K value targets and the mixed advantage.
+
+        Args:
+            tensordict: ``[*B, T]`` data with the value network's inputs (now and ``"next"``), the
+                component leaves ``("next", reward, c)`` ``[*B, T, 1]``, ``("next", "done")`` and
+                ``("next", "terminated")``.
+            **kwargs: ``params``/``target_params``/``time_dim``, as for TorchRL's GAE (a loss passes them).
+
+        Returns:
+            ``tensordict`` with ``advantage_components`` ``[*B, T, K]``, ``value_target`` ``[*B, T, K]`` and
+            ``advantage`` ``[*B, T, 1]`` = ``Σ_k w_k A_k`` (each ``A_k`` standardised first if
+            ``normalize_components``).
+        """
+        reward = tensordict.get(("next", self.tensor_keys.reward), None)
+        if not isinstance(reward, TensorDictBase):
+            found = "nothing" if reward is None else f"a tensor of shape {tuple(reward.shape)}"
+            raise KeyError(
+                f"WeightedMultiGAE reads the reward tree ('next', {self.tensor_keys.reward!r}) with leaves "
+                f"{self.components}, found {found}; set_keys(reward=...) names the tree's root (e.g. 'reward'), "
+                "not the total"
+            )
+        missing = [name for name in self.components if name not in reward.keys()]
+        if missing:
+            raise KeyError(f"the reward tree has no leaves {missing} (it has {sorted(reward.keys())})")
+        with torch.no_grad():
+            # GAE reads the tree and hands it to _prepare_signals, which stacks it to [*B, T, K]
+            super().forward(tensordict, **kwargs)
+            component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
+            tensordict.set(self.tensor_keys.advantage_components, component_advantages)
+            to_mix = normalize_components(component_advantages) if self.normalize_components else component_advantages
+            tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
         return tensordict
 
     def _prepare_signals(self, reward, done, terminated, value):
+        rewards = stack_components([reward.get(name) for name in self.components])  # [*B, T, K]
         # TorchRL's recursion broadcasts silently; a critic with the wrong number of heads must fail loudly.
-        if value.shape[-1] != reward.shape[-1]:
+        if value.shape[-1] != rewards.shape[-1]:
             raise ValueError(
                 f"the value network returned {value.shape[-1]} value(s) per state but there are "
-                f"{reward.shape[-1]} reward components {self.components}; build the critic with K heads"
+                f"{rewards.shape[-1]} reward components {self.components}; build the critic with K heads"
             )
-        return reward, done.expand_as(reward), terminated.expand_as(reward)
+        return rewards, done.expand_as(rewards), terminated.expand_as(rewards)

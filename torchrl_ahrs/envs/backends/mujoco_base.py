@@ -91,8 +91,9 @@ from __future__ import annotations
 
 import itertools
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -264,7 +265,7 @@ class BatchedMujocoEnv(EnvBase):
     def _physics_step(self) -> None:
         """Advances every env by ``decimation`` substeps on the pool plus the main thread."""
         if self.per_substep_control:
-            tasks = [(self._run_slice, s) for s in self._slices]
+            tasks: list[tuple[Callable[[Any], None], Any]] = [(self._run_slice, s) for s in self._slices]
         else:
             counter = itertools.count()
             tasks = [(self._run_queue, counter)] * len(self._slices)

@@ -20,6 +20,8 @@ from collections.abc import Mapping
 
 import torch
 
+from torchrl_ahrs.envs.common.rotations import quat_rotate_inverse  # also used by the tasks as lr.quat_rotate_inverse
+
 # legged_gym's Cassie reward scales (before × dt); only_positive_rewards is False for Cassie
 CASSIE_REWARD_SCALES: dict[str, float] = {
     "termination": -200.0,
@@ -33,25 +35,6 @@ CASSIE_REWARD_SCALES: dict[str, float] = {
     "dof_pos_limits": -1.0,
     "no_fly": 0.25,
 }
-
-
-def quat_rotate_inverse(quat: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
-    """Expresses world-frame vectors in the body frame of unit quaternions (w, x, y, z).
-
-    Args:
-        quat: [*B, 4] body orientation (MuJoCo order, w first).
-        vec: [*B, 3] world-frame vectors.
-
-    Returns:
-        [*B, 3] R(quat)ᵀ · vec.
-    """
-    w, xyz = quat[..., :1], quat[..., 1:]
-    # Rᵀv = v(2w² − 1) − 2w (q × v) + 2 q (q · v)
-    return (
-        vec * (2.0 * w * w - 1.0)
-        - 2.0 * w * torch.linalg.cross(xyz, vec, dim=-1)
-        + 2.0 * xyz * (xyz * vec).sum(-1, keepdim=True)
-    )
 
 
 def projected_gravity(quat: torch.Tensor) -> torch.Tensor:

@@ -196,9 +196,16 @@ class AntEnv(BatchedMujocoEnv):
         return self.qpos[:, 2] < self.scales["termination_height"]
 
 
-def make_ant(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
-    """Task builder (registry signature): ``AntEnv`` + ``RewardComponents`` over ``task_cfg.components``."""
-    env = AntEnv(
+def make_ant(
+    task_cfg: Mapping[str, Any],
+    num_envs: int,
+    seed: int = 0,
+    device: str = "cpu",
+    env_class: type[AntEnv] = AntEnv,
+) -> EnvBase:
+    """Task builder (registry signature): ``AntEnv`` (or ``env_class``, e.g. its MJX variant) + ``RewardComponents``
+    over ``task_cfg.components``."""
+    env = env_class(
         num_envs,
         decimation=int(task_cfg.get("decimation", 2)),
         max_episode_steps=int(task_cfg.get("max_episode_steps", 1000)),

@@ -253,8 +253,15 @@ def _per_joint(values: Mapping[str, float] | Any) -> list[float]:
     return [float(values[name]) for name in LEG_JOINTS]
 
 
-def make_cassie(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
-    """Task builder (registry signature): ``CassieEnv`` + ``RewardComponents`` over ``task_cfg.components``."""
+def make_cassie(
+    task_cfg: Mapping[str, Any],
+    num_envs: int,
+    seed: int = 0,
+    device: str = "cpu",
+    env_class: type[CassieEnv] = CassieEnv,
+) -> EnvBase:
+    """Task builder (registry signature): ``CassieEnv`` (or ``env_class``, e.g. its MJX variant) + ``RewardComponents``
+    over ``task_cfg.components``."""
     model, layout = load_cassie_model(
         task_cfg.get("model_path") or None,
         physics_dt=float(task_cfg.get("physics_dt", 0.005)),
@@ -269,7 +276,7 @@ def make_cassie(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, devic
         )
     commands = task_cfg.get("commands", {})
     ranges = {k: tuple(commands[k]) for k in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw") if k in commands}
-    env = CassieEnv(
+    env = env_class(
         model,
         layout,
         num_envs,

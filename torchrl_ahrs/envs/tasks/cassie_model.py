@@ -23,6 +23,7 @@ Example:
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -136,8 +137,8 @@ def _add_touch_sensor(spec: mujoco.MjSpec, model: mujoco.MjModel, body_name: str
 def load_cassie_model(
     model_path: str | Path | None = None,
     physics_dt: float = 0.005,
-    stiffness: np.ndarray | list[float] = (100, 100, 200, 200, 40),
-    damping: np.ndarray | list[float] = (3, 3, 6, 6, 1),
+    stiffness: np.ndarray | Sequence[float] = (100, 100, 200, 200, 40),
+    damping: np.ndarray | Sequence[float] = (3, 3, 6, 6, 1),
 ) -> tuple[mujoco.MjModel, CassieLayout]:
     """Compiles a Cassie model with PD servos and touch sensors.
 

@@ -111,9 +111,16 @@ class QuadcopterEnv(BatchedMujocoEnv):
         return (distance > self.max_distance) | (self.qpos[:, 2] < self.min_height)
 
 
-def make_quadcopter(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
-    """Task builder (registry signature): ``QuadcopterEnv`` + ``RewardComponents`` over ``task_cfg.components``."""
-    env = QuadcopterEnv(
+def make_quadcopter(
+    task_cfg: Mapping[str, Any],
+    num_envs: int,
+    seed: int = 0,
+    device: str = "cpu",
+    env_class: type[QuadcopterEnv] = QuadcopterEnv,
+) -> EnvBase:
+    """Task builder (registry signature): ``QuadcopterEnv`` (or ``env_class``, e.g. its MJX variant) + ``RewardComponents``
+    over ``task_cfg.components``."""
+    env = env_class(
         num_envs,
         decimation=int(task_cfg.get("decimation", 2)),
         max_episode_steps=int(task_cfg.get("max_episode_steps", 500)),

@@ -1,0 +1,145 @@
+"""The paper-style report of a sweep behind ``python -m torchrl_ahrs.report <sweep dir> [...] [--out DIR]``.
+
+Reads every run directory below the sweep directories (several are pooled) (see :mod:`torchrl_ahrs.reporting.runs`) and writes
+to ``--out`` (default ``<sweep dir>/report``):
+
+- ``report.md``: the method x task table of the paper's Tables I-II (final return mean ± std over seeds,
+  change against PPO in %), bootstrap 95 % CIs and interquartile means, runs that are not ``ok`` (missing,
+  incomplete, too few metric rows: listed, never dropped silently), per-component returns, the rules the
+  schedulers applied, the LLM summary and the figures;
+- ``summary.csv``, ``runs.csv``, ``components.csv``, ``rules.csv``, ``llm.csv``: the same numbers;
+- ``curves_<task>.png`` (mean ± std learning curves), ``weights_<task>.png`` (weight and rule timelines of
+  scheduled runs), ``components_<task>.png`` (final return per reward component).
+
+Final return of a run = mean of its ``return/total`` rows logged after 90 % of ``trainer.total_frames``
+(each row is the mean native return of the episodes finished in one iteration).
+
+Example::
+
+    python -m torchrl_ahrs.sweep +sweep=smoke hydra.sweep.dir=outputs/sweeps/smoke
+    python -m torchrl_ahrs.report outputs/sweeps/smoke
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+from torchrl_ahrs.reporting import figures
+from torchrl_ahrs.reporting.runs import Run, load_sweep
+from torchrl_ahrs.reporting.stats import FINAL_WINDOW
+from torchrl_ahrs.reporting.tables import (
+    component_rows,
+    llm_rows,
+    markdown_table,
+    paper_table,
+    rule_rows,
+    run_rows,
+    summary_rows,
+)
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> Path:
+    """``rows`` as CSV with a header (the union of the rows' keys, in first-seen order)."""
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=columns, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def write_report(sweep_dir: Path | list[Path], out_dir: Path, title: str | None = None) -> dict[str, Any]:
+    """Writes the report of ``sweep_dir`` (or of several sweep directories pooled, e.g. a sweep extended
+    with more seeds) into ``out_dir``; returns its tables (lists of row dicts).
+
+    Example:
+        >>> tables = write_report(Path("outputs/sweeps/smoke"), Path("/tmp/report"))  # doctest: +SKIP
+        >>> tables["summary"][0]["mean"]  # doctest: +SKIP
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    runs = load_sweep(sweep_dir)
+    tables = {
+        "summary": summary_rows(runs),
+        "runs": run_rows(runs),
+        "components": component_rows(runs),
+        "rules": rule_rows(runs),
+        "llm": llm_rows(runs),
+    }
+    for name, rows in tables.items():
+        write_csv(rows, out_dir / f"{name}.csv")
+    images = draw_figures(runs, out_dir)
+    names = [Path(d).name for d in (sweep_dir if isinstance(sweep_dir, list) else [sweep_dir])]
+    (out_dir / "report.md").write_text(render_markdown(runs, tables, images, title or " + ".join(names)))
+    return tables
+
+
+def draw_figures(runs: list[Run], out_dir: Path) -> dict[str, list[Path]]:
+    """All PNGs, grouped by kind."""
+    images: dict[str, list[Path]] = {"curves": [], "weights": [], "components": []}
+    for task in sorted({run.task for run in runs}):
+        task_runs = [run for run in runs if run.task == task]
+        for kind, draw in (
+            ("curves", figures.learning_curves),
+            ("weights", figures.weight_timelines),
+            ("components", figures.component_returns),
+        ):
+            path = draw(task, task_runs, out_dir / f"{kind}_{task}.png")
+            if path is not None:
+                images[kind].append(path)
+    return images
+
+
+def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, list[Path]], title: str) -> str:
+    """The Markdown report."""
+    not_ok = [row for row in tables["runs"] if row["status"] != "ok"]
+    ok_count = len(tables["runs"]) - len(not_ok)
+    budgets = sorted({run.total_frames for run in runs if run.path})
+    llms = sorted({run.llm_name for run in runs if run.path})
+    parts = [
+        f"# Sweep report: {title}\n",
+        f"{len(tables['runs'])} runs ({ok_count} ok, {len(not_ok)} not ok); frame budget per run "
+        f"{', '.join(f'{b:,}' for b in budgets)}; llm backend(s): {', '.join(llms)}.\n",
+        f"**Final return** of a run = mean of its `return/total` rows (each the mean native return of the "
+        f"episodes finished in one iteration) logged after {100 * (1 - FINAL_WINDOW):.0f} % of the frame "
+        "budget. Cells: mean ± sample std (ddof = 1) over the finished seeds, and the change of the mean "
+        "against PPO on the same task in % of |PPO| (positive = higher return).\n",
+        "## Final return (paper Tables I-II layout)\n",
+        paper_table(tables["summary"]),
+        "\n## Statistics per method and task\n",
+        "Bootstrap: percentile 95 % interval of the mean over seeds (10 000 resamples, fixed seed); with a "
+        "handful of seeds it is a spread, not a significance test. IQM: mean of the middle half of the seeds (the mean "
+        "for fewer than 4 seeds).\n",
+        markdown_table(
+            tables["summary"],
+            [
+                "task",
+                "method",
+                "seeds_ok",
+                "seeds_not_ok",
+                "mean",
+                "std",
+                "ci95_low",
+                "ci95_high",
+                "iqm",
+                "change_vs_ppo_pct",
+            ],
+        ),
+        "\n## Runs not ok (missing, incomplete, too few metric rows)\n",
+        markdown_table(not_ok, ["task", "method", "seed", "status", "reason", "path"]) if not_ok else "None.\n",
+        "\n## Learning curves\n",
+        *[f"![{p.stem}]({p.name})\n" for p in images["curves"]],
+        "\n## Per-component final returns\n",
+        "PPO learns the total reward with one head and logs no component returns (–).\n",
+        markdown_table(tables["components"], ["task", "method", "component", "mean", "std"]),
+        *[f"![{p.stem}]({p.name})\n" for p in images["components"]],
+        "\n## Weight and rule timelines of scheduled runs\n",
+        markdown_table(tables["rules"], ["task", "method", "rule", "decisions", "selector"]),
+        *[f"![{p.stem}]({p.name})\n" for p in images["weights"]],
+        "\n## LLM calls\n",
+        markdown_table(tables["llm"])
+        if tables["llm"]
+        else "No LLM calls in this sweep (llm=offline: the bandit stood in for the LLM selector).\n",
+    ]
+    return "\n".join(parts)

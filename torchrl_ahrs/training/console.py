@@ -1,0 +1,188 @@
+"""What a person watching a run sees: one short progress line and, now and then, a per-component table.
+
+Everything else (every component's reward, return and weight, the PPO diagnostics) goes to the
+logger (CSV / TensorBoard), not the terminal. The line::
+
+    1.23M/10.0M frames | 8.41k frames/s | ETA 17:32 | return 871.3 | rule 9 hdpg
+
+frames/s is end to end (frames since the start over wall-clock time since the start, collection and
+updates together). The table is printed at every decision the scheduler applied, and every
+``table_interval`` iterations::
+
+    it 40 | 1.23M frames | rule 9 hdpg
+      component     return   weight   share
+      forward        812.3    1.500   61.2%
+      ctrl           -41.2    0.500   12.1%
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, TextIO
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.trainers import TrainerHookBase
+
+from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
+
+LINE_WIDTH = 80  # a standard terminal
+
+
+def effective_shares(weights: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """Each component's share of the mixed advantage's scale: ``[K], [K] -> [K]``, summing to 1.
+
+    Example:
+        >>> effective_shares(torch.tensor([1.0, 1.0]), torch.tensor([3.0, 1.0])).tolist()
+        [0.75, 0.25]
+    """
+    contribution = weights.abs() * scales  # |w_k| * sigma_k: the size of w_k A_k
+    if contribution.sum() <= 0:  # no spread anywhere (e.g. constant rewards): the weights alone
+        contribution = weights.abs()
+    return contribution / contribution.sum().clamp_min(1e-12)  # share_k = c_k / sum_j c_j
+
+
+def _si(value: float) -> str:
+    for unit, size in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if abs(value) >= size:
+            return f"{value / size:.3g}{unit}"
+    return f"{value:.3g}"
+
+
+def _clock(seconds: float) -> str:
+    minutes, secs = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+class ConsoleProgress(TrainerHookBase):
+    """Trainer hook (``pre_steps_log``) printing one progress line and a compact per-component table.
+
+    Args:
+        total_frames: the run's frame budget (for the ETA).
+        components: the K components (the estimator's order).
+        estimator: has ``weights [K]`` (and ``normalize_components``); a ``WeightedMultiGAE``.
+        scheduler: optional ``RuleScheduler`` (``rule_id``, ``decision_index``, ``repository``).
+        table_interval: iterations between tables besides the decisions (0 = at decisions only).
+        stream: where to write (default ``sys.stderr``).
+        start_frames: frames already done (a resumed run).
+        clock: seconds for the rate and ETA (default ``time.monotonic``; tests pass a fake one).
+
+    Example:
+        >>> import io, torch
+        >>> from tensordict import TensorDict
+        >>> class Gae:
+        ...     weights, normalize_components = torch.tensor([1.0, 0.5]), False
+        >>> out = io.StringIO()
+        >>> console = ConsoleProgress(1000, ["a", "b"], Gae(), table_interval=1, stream=out)
+        >>> batch = TensorDict({"next": {"done": torch.ones(4, 1, dtype=torch.bool),
+        ...     "reward": {"a": torch.arange(4.0)[:, None], "b": 2 * torch.arange(4.0)[:, None], "total": torch.ones(4, 1)},
+        ...     "episode_reward": {"a": torch.ones(4, 1), "b": torch.ones(4, 1), "total": torch.full((4, 1), 9.0)}}}, [4])
+        >>> console(batch)
+        {}
+        >>> line, *table = out.getvalue().splitlines()
+        >>> line.split(" | ")[0], line.split(" | ")[3]
+        ('4/1k frames', 'return 9')
+        >>> table[2].split(), table[3].split()  # b: half the weight, twice the spread: the same share
+        (['a', '1', '1.000', '50.0%'], ['b', '1', '0.500', '50.0%'])
+    """
+
+    def __init__(
+        self,
+        total_frames: int,
+        components: Sequence[str],
+        estimator: Any,
+        scheduler: Any = None,
+        table_interval: int = 10,
+        stream: TextIO | None = None,
+        start_frames: int = 0,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.total_frames = int(total_frames)
+        self.components = list(components)
+        self.estimator = estimator
+        self.scheduler = scheduler
+        self.table_interval = int(table_interval)
+        self.stream = stream if stream is not None else sys.stderr
+        self.frames = int(start_frames)
+        self.start_frames = self.frames
+        self.clock = clock
+        self.started = clock()
+        self.iteration = 0
+        self.last_return: float | None = None
+        self.last_component_returns: list[float] | None = None
+        self.seen_decisions = getattr(scheduler, "decision_index", 0)
+
+    def decision_text(self) -> str:
+        """``rule 9 hdpg`` (the rule in force), ``direct weights`` or ``no rule yet``."""
+        scheduler = self.scheduler
+        if scheduler is None or getattr(scheduler, "rule_id", None) is None:
+            if scheduler is not None and int(getattr(scheduler, "decision_index", 0)) > 0:
+                return "direct weights"
+            return "no rule yet"
+        rule = scheduler.repository[scheduler.rule_id]
+        return f"rule {rule.id} {rule.key}"
+
+    def line(self) -> str:
+        """One line of at most 80 characters: frames, frames/s, ETA, total return, the rule in force."""
+        elapsed = max(self.clock() - self.started, 1e-9)
+        rate = (self.frames - self.start_frames) / elapsed  # end to end: collection + update
+        eta = (self.total_frames - self.frames) / rate if rate > 0 else float("inf")
+        parts = [
+            f"{_si(self.frames)}/{_si(self.total_frames)} frames",
+            f"{_si(rate)} frames/s",
+            f"ETA {_clock(eta) if eta != float('inf') else '?'}",
+            f"return {'?' if self.last_return is None else f'{self.last_return:.4g}'}",
+            self.decision_text(),
+        ]
+        text = " | ".join(parts)
+        return text if len(text) <= LINE_WIDTH else text[: LINE_WIDTH - 1] + "…"  # one terminal line
+
+    def table(self, batch: TensorDictBase) -> str:
+        """Per-component last mean return, weight and effective share (weights x component scale)."""
+        weights = self.estimator.weights.detach().float().cpu()
+        if getattr(self.estimator, "normalize_components", False):
+            scales = torch.ones_like(weights)  # each A_k is standardised: the weights alone decide
+        else:
+            scales = torch.stack(
+                [batch.get(("next", "reward", c)).float().std().nan_to_num(0.0) for c in self.components]
+            )
+        shares = effective_shares(weights, scales)
+        returns = self.last_component_returns or [float("nan")] * len(self.components)
+        width = max(9, *(len(c) for c in self.components))
+        rows = [
+            f"it {self.iteration} | {_si(self.frames)} frames | {self.decision_text()}",
+            f"  {'component':<{width}} {'return':>9} {'weight':>8} {'share':>7}",
+        ]
+        for name, ret, weight, share in zip(self.components, returns, weights.tolist(), shares.tolist(), strict=True):
+            rows.append(f"  {name:<{width}} {ret:>9.4g} {weight:>8.3f} {share:>7.1%}")
+        return "\n".join(rows)
+
+    def __call__(self, batch: TensorDictBase) -> dict[str, float]:
+        self.iteration += 1
+        self.frames += batch.numel()
+        tracked = self.components + ([TOTAL] if TOTAL not in self.components else [])
+        returns = finished_episode_returns(batch, tracked)  # [M, K+1]
+        if returns.shape[0]:
+            means = returns.mean(0).tolist()
+            self.last_component_returns, self.last_return = means[: len(self.components)], means[-1]
+            if TOTAL in self.components:
+                self.last_return = means[self.components.index(TOTAL)]
+        print(self.line(), file=self.stream, flush=True)
+        decisions = getattr(self.scheduler, "decision_index", 0)
+        periodic = self.table_interval > 0 and self.iteration % self.table_interval == 0
+        if decisions != self.seen_decisions or periodic:
+            self.seen_decisions = decisions
+            print(self.table(batch), file=self.stream, flush=True)
+        return {}  # nothing for the logger: ComponentReturnLog logs the numbers
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        pass
+
+    def register(self, trainer, name: str = "console") -> None:
+        trainer.register_op("pre_steps_log", self)
