@@ -17,6 +17,7 @@ from PIL import Image
 
 from torchrl_ahrs.app.config import save_config
 from torchrl_ahrs.app.policy import EvaluationError, load_policy
+from torchrl_ahrs.app.run_dir import RunDirectory
 from torchrl_ahrs.evaluate import evaluate
 from torchrl_ahrs.train import train
 
@@ -138,12 +139,13 @@ def run_main(*args):
 
 
 def test_missing_checkpoint_is_one_clear_error_line(tmp_path):
-    save_config(make_cfg(*TINY_RUN), tmp_path / "config.yaml")
+    run = RunDirectory(tmp_path)
+    save_config(make_cfg(*TINY_RUN), run.config)
     code, stderr = run_main(f"run={tmp_path}")
     assert code == 2
     assert stderr.strip() == (
-        f"error: no checkpoint at {tmp_path / 'checkpoint.pt'}: the run has not finished or ran with "
-        "trainer.checkpoint=false"
+        f"error: no checkpoint at {run.checkpoint}: the run has not reached its first checkpoint "
+        "(every checkpoint.interval iterations, and at the end)"
     )
 
 

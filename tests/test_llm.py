@@ -14,8 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.app.run_dir import DECISIONS, LLM_CALLS
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
-from torchrl_ahrs.llm.client import CALLS_FILE, LLMClient, LLMConfig, ReplayMiss
+from torchrl_ahrs.llm.client import LLMClient, LLMConfig, ReplayMiss
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler, load_repository
 from torchrl_ahrs.scheduling.llm_selectors import DirectWeightSelector, LLMRuleSelector
 
@@ -66,17 +67,17 @@ def feed(scheduler, returns):
 
 
 def llm_scheduler(server, run_dir, **config):
-    client = LLMClient(llm_config(server, **config), run_dir=run_dir, sleep=lambda seconds: None)
+    client = LLMClient(llm_config(server, **config), calls_path=run_dir / LLM_CALLS, sleep=lambda seconds: None)
     selector = LLMRuleSelector(client, REPO, TASK, COMPONENTS, base_weight=0.5, interval=1)
-    return RuleScheduler(Estimator(), COMPONENTS, REPO, selector, interval=1, run_dir=run_dir)
+    return RuleScheduler(Estimator(), COMPONENTS, REPO, selector, interval=1, decisions_path=run_dir / DECISIONS)
 
 
 def calls(run_dir):
-    return [json.loads(line) for line in (run_dir / CALLS_FILE).read_text().splitlines()]
+    return [json.loads(line) for line in (run_dir / LLM_CALLS).read_text().splitlines()]
 
 
 def decisions(run_dir):
-    return [json.loads(line) for line in (run_dir / "scheduler_decisions.jsonl").read_text().splitlines()]
+    return [json.loads(line) for line in (run_dir / DECISIONS).read_text().splitlines()]
 
 
 def test_valid_answer_selects_rule_and_logs_call_without_secret(server, tmp_path):
@@ -91,7 +92,7 @@ def test_valid_answer_selects_rule_and_logs_call_without_secret(server, tmp_path
     prompt = entry["prompt"][0]["content"]
     assert "Mean Returns Only" in prompt and "~[1]~" in prompt and "1 to 9" in prompt and "[1, 2, 4]" in prompt
     assert server.requests[0]["auth"] == f"Bearer {SECRET}"  # the key reaches the server ...
-    assert SECRET not in (tmp_path / CALLS_FILE).read_text()  # ... and never the log
+    assert SECRET not in (tmp_path / LLM_CALLS).read_text()  # ... and never the log
 
 
 def test_malformed_then_corrected(server, tmp_path):
@@ -143,9 +144,9 @@ def test_persistent_failures_and_timeouts_keep_training_going(server, tmp_path):
 
 def test_direct_weights_validated(server, tmp_path):
     server.script = [("ok", "~[1, 2]~"), ("ok", "~[1, 1, 2]~")]  # wrong count, then valid
-    client = LLMClient(llm_config(server), run_dir=tmp_path)
+    client = LLMClient(llm_config(server), calls_path=tmp_path / LLM_CALLS)
     selector = DirectWeightSelector(client, TASK, COMPONENTS, 0.5, 1)
-    scheduler = RuleScheduler(Estimator(), COMPONENTS, REPO, selector, interval=1, run_dir=tmp_path)
+    scheduler = RuleScheduler(Estimator(), COMPONENTS, REPO, selector, interval=1, decisions_path=tmp_path / DECISIONS)
     feed(scheduler, [1.0, 2.0, 4.0])
     assert scheduler.weights.tolist() == pytest.approx([0.75, 0.75, 1.0]) and scheduler.rule_id is None
     assert calls(tmp_path)[0]["parse_error"] == "expected 3 weights, got 2"
@@ -154,9 +155,9 @@ def test_direct_weights_validated(server, tmp_path):
 def test_cache_makes_reruns_free(server, tmp_path):
     server.script = [("ok", "~[4]~")]
     messages = [{"role": "user", "content": "pick"}]
-    first = LLMClient(llm_config(server, cache_dir=str(tmp_path / "cache")), run_dir=tmp_path / "a")
+    first = LLMClient(llm_config(server, cache_dir=str(tmp_path / "cache")), calls_path=tmp_path / "a" / LLM_CALLS)
     assert first.complete(messages, "t").text == "~[4]~" and len(server.requests) == 1
-    second = LLMClient(llm_config(server, cache_dir=str(tmp_path / "cache")), run_dir=tmp_path / "b")
+    second = LLMClient(llm_config(server, cache_dir=str(tmp_path / "cache")), calls_path=tmp_path / "b" / LLM_CALLS)
     reply = second.complete(messages, "t")
     assert reply.text == "~[4]~" and reply.source == "cache" and len(server.requests) == 1
 
@@ -171,7 +172,7 @@ def run_schedule(config, run_dir, rounds=6):
             "scheduler": {"interval": 1, "history_length": 5, "base_weight": 0.5, "rules": None, "blocking": True},
         }
     )
-    scheduler = build_scheduler(cfg, Estimator(), COMPONENTS, run_dir)
+    scheduler = build_scheduler(cfg, Estimator(), COMPONENTS, run_dir / DECISIONS, llm_calls_path=run_dir / LLM_CALLS)
     schedule = []
     for i in range(rounds):
         feed(scheduler, [float(i), 2.0 - i, (i * 7) % 5])
@@ -187,13 +188,16 @@ def test_replay_reproduces_a_schedule_without_the_server(server, tmp_path):
     assert [rule for rule, _ in recorded] == [3, 1, 9, 9, 2, 6]
     server.close()
     replayed = run_schedule(
-        {"name": "replay", "model": "replay", "replay_from": str(tmp_path / "recorded")}, tmp_path / "replay"
+        {"name": "replay", "model": "replay", "replay_from": str(tmp_path / "recorded" / LLM_CALLS)},
+        tmp_path / "replay",
     )
     assert replayed == recorded
     assert all(entry["source"] == "replay" for entry in calls(tmp_path / "replay"))
     with pytest.raises(ReplayMiss):  # one more decision than recorded
         run_schedule(
-            {"name": "replay", "model": "replay", "replay_from": str(tmp_path / "recorded")}, tmp_path / "x", rounds=7
+            {"name": "replay", "model": "replay", "replay_from": str(tmp_path / "recorded" / LLM_CALLS)},
+            tmp_path / "x",
+            rounds=7,
         )
 
 

@@ -13,7 +13,8 @@ import torch
 from conftest import make_cfg
 from llm_server import ScriptedServer, context_length_error, free_port
 
-from torchrl_ahrs.llm.client import CALLS_FILE, LLMClient, LLMConfig, retry_after
+from torchrl_ahrs.app.run_dir import DECISIONS, LLM_CALLS
+from torchrl_ahrs.llm.client import LLMClient, LLMConfig, retry_after
 from torchrl_ahrs.scheduling import RuleScheduler, load_repository
 from torchrl_ahrs.scheduling.llm_selectors import LLMRuleSelector
 from torchrl_ahrs.train import train
@@ -40,9 +41,9 @@ class Estimator:
 def scheduler_for(api_base, run_dir, **overrides):
     settings = dict(model="openai/test-model", api_base=api_base, timeout=2.0, max_retries=1, backoff=0.0)
     settings.update(overrides)
-    client = LLMClient(LLMConfig(**settings), run_dir=run_dir)  # real sleep: Retry-After is timed
+    client = LLMClient(LLMConfig(**settings), calls_path=run_dir / LLM_CALLS)  # real sleep: Retry-After is timed
     selector = LLMRuleSelector(client, REPO, TASK, COMPONENTS, base_weight=0.5, interval=1)
-    return RuleScheduler(Estimator(), COMPONENTS, REPO, selector, interval=1, run_dir=run_dir)
+    return RuleScheduler(Estimator(), COMPONENTS, REPO, selector, interval=1, decisions_path=run_dir / DECISIONS)
 
 
 def decide(scheduler):
@@ -77,9 +78,9 @@ def test_persistent_fault_is_retried_then_falls_back(llm_server, tmp_path, loopb
     scheduler = scheduler_for(llm_server.api_base, tmp_path)
     assert decide(scheduler) < 3.0
     assert len(llm_server.requests) == 2  # one retry (max_retries=1), then the selector's fallback
-    (call,) = jsonl(tmp_path / CALLS_FILE)
+    (call,) = jsonl(tmp_path / LLM_CALLS)
     assert call["response"] is None and call["attempts"] == 2 and error_name in call["error"]
-    (decision,) = jsonl(tmp_path / "scheduler_decisions.jsonl")
+    (decision,) = jsonl(tmp_path / DECISIONS)
     assert "LLM call failed after 2 attempt(s)" in decision["message"] and "weights kept" in decision["message"]
     assert scheduler.rule_id is None and scheduler.weights.tolist() == [0.5, 0.5, 0.5]
 
@@ -89,15 +90,15 @@ def test_one_fault_then_the_retry_answers(llm_server, tmp_path, loopback_only, f
     llm_server.script = [fault, ("ok", "~[3]~")]
     scheduler = scheduler_for(llm_server.api_base, tmp_path)
     decide(scheduler)
-    assert scheduler.rule_id == 3 and jsonl(tmp_path / CALLS_FILE)[0]["attempts"] == 2
+    assert scheduler.rule_id == 3 and jsonl(tmp_path / LLM_CALLS)[0]["attempts"] == 2
 
 
 def test_server_down_falls_back_quickly(tmp_path, loopback_only):
     scheduler = scheduler_for(f"http://127.0.0.1:{free_port()}/v1", tmp_path, max_retries=2)
     assert decide(scheduler) < 3.0
-    (call,) = jsonl(tmp_path / CALLS_FILE)
+    (call,) = jsonl(tmp_path / LLM_CALLS)
     assert call["attempts"] == 3 and call["error"].count("Connection refused") == 3
-    assert "LLM call failed after 3 attempt(s)" in jsonl(tmp_path / "scheduler_decisions.jsonl")[0]["message"]
+    assert "LLM call failed after 3 attempt(s)" in jsonl(tmp_path / DECISIONS)[0]["message"]
 
 
 @pytest.mark.parametrize("header", [{"Retry-After": "1"}, {"retry-after-ms": "1000"}], ids=["seconds", "ms"])
@@ -107,7 +108,7 @@ def test_429_retry_after_is_honoured(llm_server, tmp_path, loopback_only, header
     decide(scheduler)
     first, second = llm_server.requests
     assert 1.0 <= second["time"] - first["time"] < 2.5
-    assert scheduler.rule_id == 4 and "RateLimitError" in jsonl(tmp_path / CALLS_FILE)[0]["error"]
+    assert scheduler.rule_id == 4 and "RateLimitError" in jsonl(tmp_path / LLM_CALLS)[0]["error"]
 
 
 def test_429_retry_after_beyond_the_bound_is_not_waited_for(llm_server, tmp_path, loopback_only):
@@ -115,9 +116,9 @@ def test_429_retry_after_beyond_the_bound_is_not_waited_for(llm_server, tmp_path
     scheduler = scheduler_for(llm_server.api_base, tmp_path, max_retries=3, max_retry_after=2.0)
     assert decide(scheduler) < 1.5
     assert len(llm_server.requests) == 1
-    (call,) = jsonl(tmp_path / CALLS_FILE)
+    (call,) = jsonl(tmp_path / LLM_CALLS)
     assert "retry after 3600 s > llm.max_retry_after=2 s" in call["error"]
-    assert "LLM call failed after 1 attempt(s)" in jsonl(tmp_path / "scheduler_decisions.jsonl")[0]["message"]
+    assert "LLM call failed after 1 attempt(s)" in jsonl(tmp_path / DECISIONS)[0]["message"]
 
 
 def test_retry_after_header_forms():
@@ -141,10 +142,10 @@ def test_prompt_over_the_context_window_is_not_retried(llm_server, tmp_path, loo
         assert decide(scheduler) < 1.5
         assert len(llm_server.requests) == decisions_so_far
         assert scheduler.rule_id == 5
-    call = jsonl(tmp_path / CALLS_FILE)[-1]
+    call = jsonl(tmp_path / LLM_CALLS)[-1]
     assert call["attempts"] == 1 and "ContextWindowExceededError" in call["error"]
     assert "maximum context length is 8192 tokens" in call["error"]
-    message = jsonl(tmp_path / "scheduler_decisions.jsonl")[-1]["message"]
+    message = jsonl(tmp_path / DECISIONS)[-1]["message"]
     assert "LLM call failed after 1 attempt(s)" in message and "previous rule 5 stays" in message
 
 
@@ -163,7 +164,7 @@ def test_training_goes_on_through_every_fault(tmp_path, loopback_only):
 
     def start_server_after_first_call():
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not (run_dir / CALLS_FILE).exists():
+        while time.monotonic() < deadline and not (run_dir / LLM_CALLS).exists():
             time.sleep(0.01)
         server = ScriptedServer(port=port)
         server.script = [("reset", "x")] * 2 + [("truncated", "x")] * 2
@@ -205,13 +206,13 @@ def test_training_goes_on_through_every_fault(tmp_path, loopback_only):
         for server in started:
             server.close()
 
-    decisions = jsonl(run_dir / "scheduler_decisions.jsonl")
+    decisions = jsonl(run_dir / DECISIONS)
     assert [decision["iteration"] for decision in decisions] == [1, 2, 3, 4, 5, 6]
     assert [decision["rule_id"] for decision in decisions] == [None, None, None, 4, 4, 6]
     messages = [decision["message"] for decision in decisions]
     assert all("LLM call failed after 2 attempt(s)" in message for message in messages[:3])
     assert "ContextWindowExceededError" in messages[4] and "previous rule 4 stays" in messages[4]
-    calls = jsonl(run_dir / CALLS_FILE)
+    calls = jsonl(run_dir / LLM_CALLS)
     for index, fault in ((0, "Connection refused"), (1, "Connection reset by peer"), (2, "JSONDecodeError")):
         assert fault in calls[index]["error"] and calls[index]["response"] is None
     assert [call["attempts"] for call in calls] == [2, 2, 2, 2, 1, 1]

@@ -1,4 +1,7 @@
-"""A run killed with SIGKILL mid-training resumes exactly: counters, metrics rows and rule history."""
+"""Resuming is exact: a run interrupted after a checkpoint and resumed equals the uninterrupted run —
+every tensor of the checkpoint (networks, optimiser, environments, carried episodes, scheduler, random
+generators), every metric row except timing, every scheduler decision — for every method and for
+``trainer.anneal_lr`` true and false. A run killed with SIGKILL resumes too (subprocess, as a user runs it)."""
 
 import json
 import os
@@ -7,18 +10,155 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 import torch
+from hydra import compose, initialize_config_module
+from tensordict import TensorDictBase
 
-from torchrl_ahrs.app.checkpoint import CHECKPOINT_FILE
+from torchrl_ahrs.app import checkpoint as checkpoint_module
+from torchrl_ahrs.app.iteration import train
+from torchrl_ahrs.app.run_dir import RunDirectory
 
-FRAMES_PER_BATCH = 16 * 32
-ITERATIONS = 14
-ARGS = [
+TIMING = {"frames_per_second"}  # metrics that measure the machine, not the run
+
+
+def make_cfg(*overrides):
+    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+def differences(a, b, path="checkpoint"):
+    """Where two checkpoints differ (bit for bit), as a list of paths into them."""
+    if isinstance(a, TensorDictBase) and isinstance(b, TensorDictBase):
+        keys = set(a.keys(True, True))
+        if keys != set(b.keys(True, True)):
+            return [f"{path}: keys {sorted(map(str, keys ^ set(b.keys(True, True))))}"]
+        return [f"{path}/{key}" for key in sorted(keys, key=str) if not torch.equal(a[key], b[key])]
+    if isinstance(a, dict) and isinstance(b, dict):
+        if set(a) != set(b):
+            return [f"{path}: keys {sorted(map(str, set(a) ^ set(b)))}"]
+        return [d for key in a for d in differences(a[key], b[key], f"{path}/{key}")]
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        if len(a) != len(b):
+            return [f"{path}: lengths {len(a)} != {len(b)}"]
+        return [d for i, (x, y) in enumerate(zip(a, b, strict=True)) for d in differences(x, y, f"{path}[{i}]")]
+    if isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor):
+        same = a.dtype == b.dtype and a.shape == b.shape and torch.equal(a, b)
+        return [] if same else [path]
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
+        return [] if a.dtype == b.dtype and np.array_equal(a, b) else [path]
+    return [] if type(a) is type(b) and a == b else [f"{path}: {a!r} != {b!r}"]
+
+
+def metric_rows(run):
+    """{scalar name: its CSV rows} for every scalar except timing ones."""
+    return {
+        str(path.relative_to(run.scalars)): path.read_text()
+        for path in sorted(run.scalars.rglob("*.csv"))
+        if path.relative_to(run.scalars).with_suffix("").as_posix() not in TIMING
+    }
+
+
+def decisions(run):
+    entries = [json.loads(line) for line in run.decisions.read_text().splitlines()] if run.decisions.is_file() else []
+    return [{key: value for key, value in entry.items() if key != "time"} for entry in entries]
+
+
+class Interrupted(Exception):
+    pass
+
+
+def train_until(cfg, run_dir, iterations, monkeypatch):
+    """Trains as ``cfg`` says but stops dead right after the checkpoint of iteration ``iterations``."""
+    save = checkpoint_module.CheckpointHook.__call__
+
+    def save_then_stop(hook):
+        save(hook)
+        if hook.iteration == iterations:
+            raise Interrupted
+
+    with monkeypatch.context() as patch:
+        patch.setattr(checkpoint_module.CheckpointHook, "__call__", save_then_stop)
+        with pytest.raises(Interrupted):
+            train(cfg, run_dir)
+
+
+def assert_same_run(first, second):
+    a = torch.load(first.checkpoint, weights_only=False)
+    b = torch.load(second.checkpoint, weights_only=False)
+    assert differences(a, b) == []
+    assert metric_rows(first) == metric_rows(second)
+    assert decisions(first) == decisions(second)
+
+
+FRAMES = 64  # per iteration: 8 envs x 8 steps
+ITERATIONS = 4
+TINY = [
+    "task=point_reach",
+    "task.max_episode_steps=6",  # episodes end and restart across the interruption
+    "trainer.num_envs=8",
+    f"trainer.frames_per_batch={FRAMES}",
+    "trainer.mini_batch_size=32",
+    "trainer.num_epochs=2",
+    f"trainer.total_frames={ITERATIONS * FRAMES}",
+    "trainer.progress_bar=false",
+    "model.hidden_sizes=[16]",
+    "scheduler.interval=1",
+    "checkpoint.interval=1",
+    "logger.backends=[csv]",
+]
+METHODS = [
+    "ppo",
+    "hdppo",
+    "ahrs_wo_a",
+    "ahrs",
+    "ppo_a",
+    "hdppo_a",
+    "ahrs_r",
+    "ahrs_d",
+]  # ahrs_d: the bandit (llm=offline)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("anneal_lr", [True, False])
+@pytest.mark.parametrize("method", METHODS)
+def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(tmp_path, monkeypatch, method, anneal_lr):
+    overrides = [*TINY, f"method={method}", f"trainer.anneal_lr={anneal_lr}"]
+    whole, cut = RunDirectory(tmp_path / "whole"), RunDirectory(tmp_path / "cut")
+    train(make_cfg(*overrides), whole.path)
+    train_until(make_cfg(*overrides), cut.path, 2, monkeypatch)
+    train(make_cfg(*overrides, f"resume={cut.path}"), cut.path)
+    assert torch.load(cut.checkpoint, weights_only=False)["state"]["collected_frames"] == ITERATIONS * FRAMES
+    assert_same_run(whole, cut)
+
+
+@pytest.mark.slow
+def test_resume_is_exact_on_a_batched_mujoco_task(tmp_path, monkeypatch):
+    overrides = [*TINY[2:], "task=quadcopter", "method=ahrs_wo_a"]
+    whole, cut = RunDirectory(tmp_path / "whole"), RunDirectory(tmp_path / "cut")
+    train(make_cfg(*overrides), whole.path)
+    train_until(make_cfg(*overrides), cut.path, 1, monkeypatch)
+    train(make_cfg(*overrides, f"resume={cut.path}"), cut.path)
+    assert_same_run(whole, cut)
+
+
+def test_a_resumed_run_that_had_already_finished_changes_nothing(tmp_path):
+    run = RunDirectory(tmp_path)
+    overrides = [*TINY, "method=ppo", f"trainer.total_frames={FRAMES}"]
+    train(make_cfg(*overrides), run.path)
+    before = torch.load(run.checkpoint, weights_only=False)
+    train(make_cfg(*overrides, f"resume={run.path}"), run.path)
+    assert differences(before, torch.load(run.checkpoint, weights_only=False)) == []
+
+
+KILL_FRAMES = 16 * 32
+KILL_ITERATIONS = 14
+KILL_ARGS = [
     "task=point_reach",
     "task.max_episode_steps=20",
     "method=hdppo",
-    f"trainer.total_frames={ITERATIONS * FRAMES_PER_BATCH}",
+    f"trainer.total_frames={KILL_ITERATIONS * KILL_FRAMES}",
     "trainer.num_envs=16",
     "trainer.frames_per_batch=512",
     "trainer.mini_batch_size=128",
@@ -30,9 +170,9 @@ ARGS = [
 ]
 
 
-def checkpoint_iteration(run_dir):
+def checkpoint_iteration(run):
     try:
-        return torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)["checkpoint"]["iteration"]
+        return torch.load(run.checkpoint, weights_only=False)["checkpoint"]["iteration"]
     except (FileNotFoundError, EOFError, RuntimeError):
         return 0
 
@@ -43,43 +183,45 @@ def csv_steps(path):
 
 @pytest.mark.slow
 def test_sigkill_then_resume_continues_exactly(tmp_path):
-    run_dir = tmp_path / "run"
+    run = RunDirectory(tmp_path / "run")
     first = subprocess.Popen(
-        [sys.executable, "-m", "torchrl_ahrs.train", *ARGS, f"hydra.run.dir={run_dir}"],
+        [sys.executable, "-m", "torchrl_ahrs.train", *KILL_ARGS, f"hydra.run.dir={run.path}"],
         cwd=tmp_path,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 600
-    while checkpoint_iteration(run_dir) < 6 and first.poll() is None and time.monotonic() < deadline:
+    while checkpoint_iteration(run) < 6 and first.poll() is None and time.monotonic() < deadline:
         time.sleep(0.2)
     assert first.poll() is None, "the run ended before it could be killed"
     os.kill(first.pid, signal.SIGKILL)
     first.wait()
-    killed_at = torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)
-    assert 6 <= killed_at["checkpoint"]["iteration"] < ITERATIONS
+    killed_at = torch.load(run.checkpoint, weights_only=False)
+    assert 6 <= killed_at["checkpoint"]["iteration"] < KILL_ITERATIONS
 
     resumed = subprocess.run(
-        [sys.executable, "-m", "torchrl_ahrs.train", f"resume={run_dir}", f"hydra.run.dir={tmp_path / 'resume'}"],
+        [sys.executable, "-m", "torchrl_ahrs.train", f"resume={run.path}", f"hydra.run.dir={tmp_path / 'resume'}"],
         cwd=tmp_path,
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    final = torch.load(run_dir / CHECKPOINT_FILE, weights_only=False)
-    assert final["state"]["collected_frames"] == ITERATIONS * FRAMES_PER_BATCH
-    assert final["checkpoint"]["iteration"] == ITERATIONS
-    assert final["rule_scheduler"]["iteration"] == ITERATIONS
-    assert final["rule_scheduler"]["decision_index"] >= killed_at["rule_scheduler"]["decision_index"]
+    final = torch.load(run.checkpoint, weights_only=False)
+    assert final["state"]["collected_frames"] == KILL_ITERATIONS * KILL_FRAMES
+    assert final["checkpoint"]["iteration"] == KILL_ITERATIONS
+    assert final["rule_scheduler"]["iteration"] == KILL_ITERATIONS
 
     # every iteration logged its weights exactly once, in order, before and after the kill
-    expected_steps = [FRAMES_PER_BATCH * (i + 1) for i in range(ITERATIONS)]
+    expected_steps = [KILL_FRAMES * (i + 1) for i in range(KILL_ITERATIONS)]
     for name in ("distance", "arrival", "ctrl"):
-        assert csv_steps(run_dir / "metrics" / "scalars" / "weight" / f"{name}.csv") == expected_steps
-    returns = csv_steps(run_dir / "metrics" / "scalars" / "return" / "total.csv")
+        assert csv_steps(run.scalar(f"weight/{name}")) == expected_steps
+    returns = csv_steps(run.scalar("return/total"))
     assert returns == sorted(set(returns))
-
     # the rule history: one decision every 2 iterations, no duplicate and none missing
-    decisions = [json.loads(line) for line in (run_dir / "scheduler_decisions.jsonl").read_text().splitlines()]
-    assert [decision["iteration"] for decision in decisions] == list(range(2, ITERATIONS + 1, 2))
+    assert [decision["iteration"] for decision in decisions(run)] == list(range(2, KILL_ITERATIONS + 1, 2))
+
+    # and the killed-and-resumed run is the uninterrupted one
+    whole = RunDirectory(tmp_path / "whole")
+    train(make_cfg(*KILL_ARGS), whole.path)
+    assert_same_run(whole, run)

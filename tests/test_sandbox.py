@@ -545,7 +545,9 @@ UNRESTRICTED_HOSTILE = {
         "open outside the Python installation",
     ),
     "socket": (
-        "import socket\n" + HEAD + "    socket.create_connection(('127.0.0.1', 9))\n    return mean_returns\n",
+        # socket.socket, not create_connection: the latter resolves the address first, whose lazy imports
+        # may meet the file-system refusals before any socket exists (refused, but not for this reason)
+        "import socket\n" + HEAD + "    socket.socket().connect(('127.0.0.1', 9))\n    return mean_returns\n",
         "socket.",
     ),
     "os.system": (

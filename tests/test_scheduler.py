@@ -8,6 +8,7 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
+from torchrl_ahrs.app.run_dir import DECISIONS
 from torchrl_ahrs.scheduling import (
     BanditSelector,
     ConstantSelector,
@@ -90,7 +91,12 @@ def test_history_pads_then_keeps_last_L_oldest_first():
 def test_fixed_rule_installs_hand_computed_weights_every_interval(tmp_path):
     estimator = FakeEstimator(3)
     scheduler = RuleScheduler(
-        estimator, COMPONENTS, REPO, FixedSelector(REPO, "mean_returns_only"), interval=2, run_dir=tmp_path
+        estimator,
+        COMPONENTS,
+        REPO,
+        FixedSelector(REPO, "mean_returns_only"),
+        interval=2,
+        decisions_path=tmp_path / DECISIONS,
     )
     assert estimator.weights.tolist() == [0.5, 0.5, 0.5]  # base weight before the first decision
     weights = run(scheduler, [make_batch([[1.0, 2.0, 0.0]]), make_batch([[3.0, 2.0, 8.0]])])
@@ -99,7 +105,7 @@ def test_fixed_rule_installs_hand_computed_weights_every_interval(tmp_path):
     assert weights[1].tolist() == [0.5, 0.5, 1.5] and estimator.weights.tolist() == [0.5, 0.5, 1.5]
     assert scheduler.scalars()["scheduler/rule"] == 1.0
     assert scheduler.scalars()["scheduler/weight_survive"] == 1.5
-    lines = (tmp_path / "scheduler_decisions.jsonl").read_text().splitlines()
+    lines = (tmp_path / DECISIONS).read_text().splitlines()
     assert len(lines) == 1 and '"rule": "mean_returns_only"' in lines[0]
 
 
@@ -191,7 +197,9 @@ def test_state_dict_resumes_exactly():
     run(first, batches[:7])
     state = first.state_dict()
     resumed = RuleScheduler(FakeEstimator(3), COMPONENTS, REPO, BanditSelector(REPO, seed=99), interval=2)
+    resumed.estimator.set_weights(first.estimator.weights.clone())  # the weights are the estimator's state
     resumed.load_state_dict(state)
+    assert "weights" not in state
     assert [w.tolist() for w in run(resumed, batches[7:])] == [w.tolist() for w in expected[7:]]
 
 
@@ -215,16 +223,19 @@ def config(method, llm="offline", **scheduler):
 
 def test_build_scheduler_for_the_shipped_methods(tmp_path, caplog):
     ppo = build_scheduler(
-        config({"selector": "constant", "initial_weights": [1.0]}), FakeEstimator(1), ["total"], tmp_path
+        config({"selector": "constant", "initial_weights": [1.0]}), FakeEstimator(1), ["total"], tmp_path / DECISIONS
     )
     assert ppo.selector.name == "constant" and ppo.weights.tolist() == [1.0]
     hdppo = build_scheduler(
-        config({"selector": "fixed", "rule": "hdpg", "initial_weights": None}), FakeEstimator(3), COMPONENTS, tmp_path
+        config({"selector": "fixed", "rule": "hdpg", "initial_weights": None}),
+        FakeEstimator(3),
+        COMPONENTS,
+        tmp_path / DECISIONS,
     )
     assert hdppo.selector.name == "fixed" and hdppo.selector.rule_id == REPO.get("hdpg").id
     with caplog.at_level(logging.INFO):
         offline = build_scheduler(
-            config({"selector": "llm", "initial_weights": None}), FakeEstimator(3), COMPONENTS, tmp_path
+            config({"selector": "llm", "initial_weights": None}), FakeEstimator(3), COMPONENTS, tmp_path / DECISIONS
         )
         run(offline, [make_batch([[1.0, 2.0, 3.0]])] * 3)
     assert offline.selector.name == "bandit" and "bandit selector stands in" in offline.note

@@ -18,7 +18,8 @@ import pytest
 from conftest import make_cfg
 
 from torchrl_ahrs.app.redaction import RedactHydraOutput, is_secret_key, secret_values
-from torchrl_ahrs.llm.client import CALLS_FILE, LLMClient, LLMConfig
+from torchrl_ahrs.app.run_dir import LLM_CALLS
+from torchrl_ahrs.llm.client import LLMClient, LLMConfig
 
 
 def fake_key(label):
@@ -75,7 +76,7 @@ def test_keys_from_environment_and_config_never_reach_run_dir_or_console(llm_ser
     for name in ("config.yaml", ".hydra/config.yaml", ".hydra/overrides.yaml", ".hydra/hydra.yaml", "checkpoint.pt"):
         assert (run_dir / name).is_file(), name
     assert list((run_dir / "metrics" / "scalars").glob("*.csv")) and list(run_dir.rglob("events.out.tfevents*"))
-    calls = [json.loads(line) for line in (run_dir / CALLS_FILE).read_text().splitlines()]
+    calls = [json.loads(line) for line in (run_dir / LLM_CALLS).read_text().splitlines()]
     assert "Incorrect API key provided: ***" in calls[0]["error"]  # the echoed key, masked
     decisions = (run_dir / "scheduler_decisions.jsonl").read_text()
     assert "AuthenticationError" in decisions and calls[-1]["parsed"] == 4
@@ -92,12 +93,12 @@ def test_environment_key_is_sent_and_masked_in_the_call_log(llm_server, tmp_path
     monkeypatch.setenv("TEST_SECRETS_KEY", env_key)
     llm_server.script = [("echo_key", 401)]
     config = LLMConfig(model="openai/m", api_base=llm_server.api_base, api_key_env="TEST_SECRETS_KEY", timeout=5)
-    reply = LLMClient(config, run_dir=tmp_path, sleep=lambda seconds: None).complete(
+    reply = LLMClient(config, calls_path=tmp_path / LLM_CALLS, sleep=lambda seconds: None).complete(
         [{"role": "user", "content": "x"}], "t"
     )
     assert llm_server.requests[0]["auth"] == f"Bearer {env_key}"
     assert reply.text is None and reply.attempts == 1 and "Incorrect API key provided: ***" in reply.error
-    assert env_key not in (tmp_path / CALLS_FILE).read_text()
+    assert env_key not in (tmp_path / LLM_CALLS).read_text()
     assert env_key not in repr(config) and "sk-" not in repr(LLMConfig(model="m", api_key="sk-abcdef"))
 
 

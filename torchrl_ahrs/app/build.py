@@ -3,22 +3,24 @@ optimiser, collector and scheduler. Nothing here runs an iteration (that is :mod
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, cast
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollector
+from torchrl.collectors import MultiAsyncCollector, MultiSyncCollector
 from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor
 
 from torchrl_ahrs.app.auxiliary import TransformFactory, auxiliary_transform
 from torchrl_ahrs.app.config import resolve_components
 from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
+from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
 from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
@@ -143,12 +145,13 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory):
     """``sync``: the envs step in this process between updates. ``multi``: ``workers`` processes each
     step ``num_envs / workers`` envs, all waiting for the update. ``async``: the worker processes keep
     collecting while the learner updates (each iteration trains on one worker's share of the batch,
-    gathered with the previous iteration's policy). On resume the trainer's registry restores the
-    collector's frame counter, so ``total_frames`` is always the whole budget."""
+    gathered with the previous iteration's policy). Each (worker's) collector is a
+    :class:`ResumableCollector`: on resume the trainer's registry restores its frame counter (so
+    ``total_frames`` is always the whole budget), its environments and the episodes they were in."""
     trainer_cfg = cfg.trainer
     frames_per_batch = trainer_cfg.frames_per_batch
     if trainer_cfg.collector == "sync":
-        return Collector(
+        return ResumableCollector(
             make_envs(trainer_cfg.num_envs, int(cfg.seed)),
             policy,
             frames_per_batch=frames_per_batch,
@@ -162,20 +165,34 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory):
     ]
     if trainer_cfg.collector == "async":
         return MultiAsyncCollector(
-            env_fns, policy, frames_per_batch=frames_per_batch // workers, total_frames=trainer_cfg.total_frames
+            env_fns,
+            policy,
+            frames_per_batch=frames_per_batch // workers,
+            total_frames=trainer_cfg.total_frames,
+            collector_class=ResumableCollector,
         )
     return MultiSyncCollector(
-        env_fns, policy, frames_per_batch=frames_per_batch, total_frames=trainer_cfg.total_frames, cat_results=0
+        env_fns,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=trainer_cfg.total_frames,
+        cat_results=0,
+        collector_class=ResumableCollector,
     )
 
 
 def build_checked_scheduler(
-    cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run_dir: Path, logger
+    cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run: RunDirectory | None, logger
 ) -> RuleScheduler:
-    """``build_scheduler`` with every rule tried once on K-shaped statistics, so a rule file that
-    cannot serve this task fails at start as a :class:`ConfigError` rather than at the first decision."""
+    """``build_scheduler`` writing into ``run`` (decisions, LLM calls), with every rule tried once on
+    K-shaped statistics, so a rule file that cannot serve this task fails at start as a
+    :class:`ConfigError` rather than at the first decision. ``llm.replay_from`` may name a run directory."""
+    if cfg.get("llm") and cfg.llm.get("replay_from"):
+        cfg = copy.deepcopy(cfg)
+        cfg.llm.replay_from = calls_log(cfg.llm.replay_from)
+    decisions, llm_calls = (run.decisions, run.llm_calls) if run is not None else (None, None)
     try:
-        scheduler = build_scheduler(cfg, estimator, components, run_dir, logger)
+        scheduler = build_scheduler(cfg, estimator, components, decisions, logger, llm_calls)
     except (ValueError, KeyError, FileNotFoundError, ImportError, SyntaxError) as error:
         raise ConfigError(f"scheduler setup failed: {error}") from error
     num_components = len(components)

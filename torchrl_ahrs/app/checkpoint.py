@@ -1,16 +1,36 @@
 """Atomic checkpoints and exact resumption of a training run.
 
-A checkpoint (``<run dir>/checkpoint.pt``) is ``Trainer.state_dict()``: the trainer's one registry of
-everything the next iteration depends on — loss module (actor, critic, observation statistics),
-optimiser (with its current learning rate), collector, and every registered module (the estimator's
-mixing weights, scheduler history and selector, minibatch order, LR schedule, the random generators,
-the checkpoint's own counter). It is written to a temporary file and renamed over the old one, so a
-process killed mid-write leaves the previous checkpoint intact.
+A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.run_dir.RunDirectory.checkpoint>`) is
+``Trainer.state_dict()``, the trainer's one registry of everything the next iteration depends on:
+
+- ``loss_module``: actor and K-head critic parameters, observation normaliser statistics;
+- ``optimizer``: Adam's moments and step counts, the current learning rate;
+- ``collector``: frames and iteration counters, the policy's weights, the environments (through
+  :class:`~torchrl_ahrs.envs.common.snapshot.BaseEnvSnapshot`: every simulation's integration state,
+  counters, targets/commands and reset-noise generator) and the carried tensordict (the last
+  observation, running episode returns, trajectory ids; :class:`~torchrl_ahrs.training.collector.ResumableCollector`);
+- ``state``: the trainer's counters (collected frames, optimisation steps, last log/save);
+- every registered module by name: ``estimator`` (the mixing weights, their only home: the scheduler
+  reads and sets them there), ``actor``, ``component_returns``,
+  ``ppo_minibatches`` (its shuffling generator), ``obs_norm``, ``lr_decay`` (when ``anneal_lr``),
+  ``update_weights``, ``rule_scheduler`` (counters, last rule, statistics history, selector and its generator),
+  ``video_log`` (when videos are on), ``rng`` (Python's, NumPy's and torch's global generators) and
+  ``checkpoint`` (its iteration counter and the component names).
+
+It is written to a temporary file and renamed over the old one, so a process killed mid-write leaves
+the previous checkpoint intact. Resuming loads it into a trainer built anew from the saved config, after
+every piece has been built (and has drawn whatever random numbers building draws), so the resumed run
+continues bit for bit: on CPU a run interrupted after any checkpoint and resumed equals the
+uninterrupted run (parameters, optimiser, metric rows except timing, scheduler decisions;
+``tests/test_resume.py``). Exact with ``trainer.collector=sync`` (the default) and ``scheduler.blocking=true``;
+worker processes of ``multi``/``async`` collectors sample with generators of their own, and a
+non-blocking scheduler decides when its thread answers. EnvPool-backed tasks (``ant_v5``, ``humanoid``,
+``go1_terrain``, ``leap_cube``, ``shadow_hand``, ``dmc_*``) cannot snapshot their C++ simulators: a resumed
+run starts new episodes there (re-seeded from the seed and the frame counter).
 
 On resume, metric rows and scheduler decisions logged after the checkpoint (by the iterations that
-were lost) are removed, so each iteration appears exactly once. Environments cannot be snapshotted: the
-resumed run starts fresh episodes, re-seeded from the seed and the frame counter. ``llm_calls.jsonl``
-is an audit log of real calls and is never truncated; the checkpoint records how many lines it had.
+were lost) are removed, so each iteration appears exactly once. The LLM calls log is an audit log of
+real calls and is never truncated.
 """
 
 from __future__ import annotations
@@ -24,8 +44,6 @@ from typing import Any
 import torch
 from torchrl.trainers import Trainer, TrainerHookBase
 
-CHECKPOINT_FILE = "checkpoint.pt"
-
 
 def save_atomic(state: dict[str, Any], path: Path) -> None:
     """``torch.save`` to ``path.tmp`` then rename: readers see the old file or the new one, never half."""
@@ -34,9 +52,9 @@ def save_atomic(state: dict[str, Any], path: Path) -> None:
     os.replace(temporary, path)
 
 
-def load_checkpoint(run_dir: Path) -> dict[str, Any]:
-    """The checkpoint of ``run_dir``; a missing file is a ``FileNotFoundError`` naming the path."""
-    path = Path(run_dir) / CHECKPOINT_FILE
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """The checkpoint at ``path``; a missing file is a ``FileNotFoundError`` naming the path."""
+    path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}; cannot resume")
     return torch.load(path, weights_only=False)
@@ -76,7 +94,7 @@ class CheckpointHook(TrainerHookBase):
     Example:
         >>> import tempfile
         >>> from pathlib import Path
-        >>> path = Path(tempfile.mkdtemp()) / "checkpoint.pt"
+        >>> path = Path(tempfile.mkdtemp()) / "state.pt"
         >>> hook = CheckpointHook(path, interval=2, state_fn=lambda: {"answer": 42})
         >>> hook(); path.exists()
         False

@@ -11,6 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl_ahrs.app.auxiliary import aux_leaves, auxiliary_components
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.redaction import is_secret_key
+from torchrl_ahrs.app.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
 
@@ -23,8 +24,6 @@ __all__ = [
     "save_config",
     "validate_config",
 ]
-
-REDACTED = "<redacted>"
 
 
 def resolve_components(cfg: DictConfig) -> list[str]:
@@ -157,12 +156,12 @@ def _is_secret(key: Any) -> bool:
 
 
 def load_saved_config(run_dir: Path, overrides: Sequence[str] = ()) -> DictConfig:
-    """A run's saved ``config.yaml`` with redacted secrets emptied (they come from the environment
+    """A run's saved config (:attr:`RunDirectory.config`) with redacted secrets emptied (they come from the environment
     again) and ``key=value`` command-line overrides applied (group choices such as ``task=`` are
     ignored: a resumed run keeps its task and method)."""
-    path = Path(run_dir) / "config.yaml"
+    path = RunDirectory(run_dir).config
     if not path.is_file():
-        raise FileNotFoundError(f"no config.yaml in {run_dir}; is it a torchrl_ahrs run directory?")
+        raise FileNotFoundError(f"no {path.name} in {run_dir}; is it a torchrl_ahrs run directory?")
     saved = OmegaConf.to_container(OmegaConf.load(path))
     cfg = OmegaConf.create(_unredact(saved))
     dotted = [item for item in overrides if "=" in item and "." in item.split("=", 1)[0]]

@@ -24,6 +24,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.app.policy import EvaluationError, load_policy
+from torchrl_ahrs.app.run_dir import EVALUATION, RunDirectory
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.evaluation.episodes import record_frames, run_episodes, summarize
 from torchrl_ahrs.evaluation.render import base_env, make_frame_source, write_clip
@@ -38,7 +39,7 @@ def evaluate(
     episodes: int = 10,
     deterministic: bool = True,
     seed: int = 12345,
-    output: str | None = "evaluation.json",
+    output: str | None = EVALUATION,
 ) -> dict[str, Any]:
     """Evaluates the run's policy on ``episodes`` episodes; returns (and writes to ``run_dir/output``)
     the summary. Reported components: the run's K components, the task's other components, ``total``.
@@ -68,7 +69,7 @@ def evaluate(
         **summarize(results, episode_metrics(results.returns, results.metrics)),
     }
     if output:
-        (Path(run_dir) / output).write_text(json.dumps(summary, indent=2) + "\n")
+        (RunDirectory(run_dir).path / output).write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
@@ -104,7 +105,7 @@ def render_clip(
         fps = fps or (1.0 / (control_dt * stride) if control_dt else DEFAULT_FPS)
     finally:
         env.close()
-    path = Path(run_dir) / "videos" / (name or f"{policy.task['name']}.{video_format}")
+    path = RunDirectory(run_dir).videos / (name or f"{policy.task['name']}.{video_format}")
     return write_clip(frames, path, fps)
 
 

@@ -25,6 +25,7 @@ import torch
 from omegaconf import DictConfig
 
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.common.config_access import select
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
@@ -132,7 +133,9 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
         source_of(observation_ref) if observation_ref else None,
     )
     first_prompt_hash = prompt_hash(messages)
-    client = LLMClient(llm_cfg, run_dir=output_dir)
+    if llm_cfg.replay_from:
+        llm_cfg.replay_from = calls_log(llm_cfg.replay_from)
+    client = LLMClient(llm_cfg, calls_path=RunDirectory(output_dir).llm_calls)
     result = AuxGenerationResult()
     with tempfile.TemporaryDirectory() as scratch:
         inputs_path = Path(scratch) / "inputs.pt"

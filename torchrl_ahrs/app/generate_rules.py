@@ -21,6 +21,7 @@ from typing import Any, cast
 
 from omegaconf import DictConfig
 
+from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
 from torchrl_ahrs.llm.generation import GenerationError, extract_code_blocks, generation_output_dir, llm_and_task
 from torchrl_ahrs.llm.prompts import rule_generation_prompt
@@ -102,7 +103,9 @@ def generate(cfg: Any, output_dir: Path) -> GenerationResult:
     llm_cfg, task = llm_and_task(cfg, "generate_rules")
     components = list(task["components"])
     messages = rule_generation_prompt(task, components, hdpg_example())
-    client = LLMClient(llm_cfg, run_dir=output_dir)
+    if llm_cfg.replay_from:
+        llm_cfg.replay_from = calls_log(llm_cfg.replay_from)
+    client = LLMClient(llm_cfg, calls_path=RunDirectory(output_dir).llm_calls)
     reply = client.complete(messages, purpose="generate_rules")
     if reply.text is None:
         raise GenerationError(f"the LLM call failed: {reply.error}")

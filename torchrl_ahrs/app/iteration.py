@@ -22,7 +22,8 @@ the resulting order before training starts.
 
 Checkpointed state has one owner, the trainer's registry (``Trainer.state_dict``): the loss module
 (actor, critic, observation statistics), the optimiser (with the current learning rate), the collector,
-and every module registered below under its name. Saving and resuming both go through it.
+and every module registered below under its name (the full list is in :mod:`.checkpoint`). Saving and
+resuming both go through it, and a resumed run is bit-identical to an uninterrupted one on CPU.
 """
 
 from __future__ import annotations
@@ -45,16 +46,10 @@ from torchrl_ahrs.app.build import (
     build_networks,
     env_factory,
 )
-from torchrl_ahrs.app.checkpoint import (
-    CHECKPOINT_FILE,
-    CheckpointHook,
-    load_checkpoint,
-    truncate_jsonl,
-    truncate_metrics,
-)
+from torchrl_ahrs.app.checkpoint import CheckpointHook, load_checkpoint, truncate_jsonl, truncate_metrics
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
+from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import register_video_log
-from torchrl_ahrs.scheduling.scheduler import DECISIONS_FILE
 from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.hooks import (
     ComponentReturnLog,
@@ -173,10 +168,12 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     """Runs one training job (or continues it, when ``cfg.resume`` names ``run_dir``, which holds a
     checkpoint) and returns the last logged metrics."""
     validate_config(cfg)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    resumed = load_checkpoint(run_dir) if cfg.get("resume") else None
+    run = RunDirectory(run_dir).mkdir()
+    resumed = load_checkpoint(run.checkpoint) if cfg.get("resume") else None
     if resumed is None:
-        save_config(cfg, run_dir / "config.yaml")
+        save_config(cfg, run.config)
+    random.seed(cfg.seed)  # every global generator, so a run does not depend on what its process did before
+    np.random.seed(cfg.seed)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.trainer.torch_threads)
 
@@ -192,10 +189,10 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     done_frames = resumed["state"]["collected_frames"] if resumed else 0
     if resumed:
         log.info("resuming %s at %d frames", run_dir, done_frames)
-        truncate_metrics(run_dir / "metrics", done_frames)
-        truncate_jsonl(run_dir / DECISIONS_FILE, done_frames)
+        truncate_metrics(run.metrics, done_frames)
+        truncate_jsonl(run.decisions, done_frames)
     collector = build_collector(cfg, networks.actor, make_envs)
-    logger = build_logger(cfg.logger.backends, run_dir, "metrics")
+    logger = build_logger(cfg.logger.backends, run.path, METRICS)
     trainer = Trainer(
         collector=collector,
         total_frames=cfg.trainer.total_frames,
@@ -207,25 +204,27 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         clip_grad_norm=True,
         clip_norm=cfg.trainer.max_grad_norm,
         progress_bar=False,  # ConsoleProgress prints the run's line (TorchRL's bar shows every pbar metric)
+        # what has a state is overwritten by load_state_dict below; on resume, what has none (EnvPool's
+        # simulators) starts episodes different from the first run's
         seed=cfg.seed + done_frames,
         num_epochs=cfg.trainer.num_epochs,
         log_interval=0,
         save_trainer_interval=sys.maxsize,
         auto_log_optim_steps=False,
     )
-    scheduler = build_checked_scheduler(cfg, estimator, components, run_dir, logger)
+    scheduler = build_checked_scheduler(cfg, estimator, components, run, logger)
     trainer.register_module("estimator", estimator)
     trainer.register_module("actor", networks.actor)  # also inside the loss; kept by name for evaluation
-    checkpoint = CheckpointHook(
-        run_dir / CHECKPOINT_FILE, cfg.checkpoint.interval or sys.maxsize, trainer.state_dict, components
-    )
+    checkpoint = CheckpointHook(run.checkpoint, cfg.checkpoint.interval or sys.maxsize, trainer.state_dict, components)
     parts = dict(
-        cfg=cfg, run_dir=run_dir, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
+        cfg=cfg, run_dir=run.path, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
         optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, done_frames=done_frames,
         loss=loss,
     )  # fmt: skip
     register_iteration(trainer, parts)
     if resumed:
+        # last, after everything that draws random numbers while being built; from here to the first
+        # collection nothing draws, so the resumed run continues the saved one bit for bit
         trainer.load_state_dict(resumed)
         collector.update_policy_weights_()
 

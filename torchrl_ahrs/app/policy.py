@@ -1,4 +1,4 @@
-"""A trained run's policy, rebuilt from its ``config.yaml`` and ``checkpoint.pt``."""
+"""A trained run's policy, rebuilt from its saved config and checkpoint (:mod:`torchrl_ahrs.app.run_dir`)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.modules import ProbabilisticActor
 
 from torchrl_ahrs.app.build import EnvFactory, build_networks, env_factory
-
-CONFIG_FILE = "config.yaml"
-CHECKPOINT_FILE = "checkpoint.pt"
+from torchrl_ahrs.app.run_dir import RunDirectory
 
 
 class EvaluationError(RuntimeError):
@@ -51,15 +49,16 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
         ...
         torchrl_ahrs.app.policy.EvaluationError: no run directory at /nonexistent
     """
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise EvaluationError(f"no run directory at {run_dir}")
-    config_path, checkpoint_path = run_dir / CONFIG_FILE, run_dir / CHECKPOINT_FILE
+    run = RunDirectory(run_dir)
+    if not run.path.is_dir():
+        raise EvaluationError(f"no run directory at {run.path}")
+    config_path, checkpoint_path = run.config, run.checkpoint
     if not config_path.is_file():
-        raise EvaluationError(f"no {CONFIG_FILE} in {run_dir}: not a training run directory")
+        raise EvaluationError(f"no {config_path.name} in {run.path}: not a training run directory")
     if not checkpoint_path.is_file():
         raise EvaluationError(
-            f"no checkpoint at {checkpoint_path}: the run has not finished or ran with trainer.checkpoint=false"
+            f"no checkpoint at {checkpoint_path}: the run has not reached its first checkpoint "
+            "(every checkpoint.interval iterations, and at the end)"
         )
     cfg = OmegaConf.load(config_path)
     if not isinstance(cfg, DictConfig):  # a YAML list would fail below with an unrelated message

@@ -23,11 +23,11 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_ahrs.app.run_dir import HYDRA_FILES, MULTIRUN, REDACTED
+
 log = logging.getLogger(__name__)
 
 SECRET_NAME = re.compile(r"secret|passw(or)?d|api_?key$|token$")  # searched in the lower-case last name part
-REDACTED = "<redacted>"
-HYDRA_FILES = ("config.yaml", "hydra.yaml", "overrides.yaml")
 
 
 def is_secret_key(key: Any) -> bool:
@@ -126,4 +126,4 @@ class RedactHydraOutput(Callback):
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         secrets = secret_values(config, config.hydra.overrides.task)
-        redact_files([Path(config.hydra.sweep.dir) / "multirun.yaml"], secrets)
+        redact_files([Path(config.hydra.sweep.dir) / MULTIRUN], secrets)

@@ -29,6 +29,7 @@ from torchrl.record import VideoRecorder
 from torchrl.record.loggers import Logger
 from torchrl.trainers import Trainer, TrainerHookBase
 
+from torchrl_ahrs.app.run_dir import RunDirectory
 from torchrl_ahrs.evaluation.episodes import record_frames
 from torchrl_ahrs.evaluation.render import base_env, make_frame_source, write_clip
 
@@ -48,7 +49,7 @@ class GifVideoLogger(Logger):
         self.run_dir, self.fps = Path(run_dir), float(fps)
         self.tensorboard_dir = tensorboard_dir
         self.written: list[Path] = []
-        super().__init__(exp_name="videos", log_dir=str(self.run_dir / "videos"))
+        super().__init__(exp_name="videos", log_dir=str(RunDirectory(self.run_dir).videos))
 
     def _create_experiment(self):
         if self.tensorboard_dir is None:
@@ -119,7 +120,7 @@ class VideoLog(TrainerHookBase):
         self.env = make_envs(1, seed)
         self.frame_source = make_frame_source(self.env, width, height)  # fails now, not mid-run, if it cannot render
         control_dt = getattr(base_env(self.env), "control_dt", None)
-        self.logger = GifVideoLogger(run_dir, 1.0 / control_dt if control_dt else 30.0, Path(run_dir) / "metrics")
+        self.logger = GifVideoLogger(run_dir, 1.0 / control_dt if control_dt else 30.0, RunDirectory(run_dir).metrics)
         self.recorder = VideoRecorder(self.logger, tag="policy", in_keys=["pixels"], skip=1)
         self.iteration = 0
 

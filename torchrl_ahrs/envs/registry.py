@@ -14,6 +14,7 @@ from typing import Any
 
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
+from torchrl_ahrs.envs.common.snapshot import BaseEnvSnapshot
 from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
 from torchrl_ahrs.rewards.components import TOTAL, ComponentRewardSum, component_reward_keys
 
@@ -89,7 +90,9 @@ def make_env(
 
     Returns:
         A ``TransformedEnv`` with batch size ``[N]`` whose ``next`` tensordict holds
-        ``("reward", c)`` and ``("episode_reward", c)`` for every c in ``components`` and ``"total"``.
+        ``("reward", c)`` and ``("episode_reward", c)`` for every c in ``components`` and ``"total"``;
+        its ``state_dict()`` holds the simulator's running episodes when the backend can snapshot them
+        (:mod:`torchrl_ahrs.envs.common.snapshot`).
 
     Example:
         >>> from torchrl_ahrs.envs import load_task_config, make_env
@@ -118,6 +121,7 @@ def make_env(
     if not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     env.append_transform(ComponentRewardSum(tracked))
+    env.append_transform(BaseEnvSnapshot())  # env.state_dict() holds the simulator's state when it has one
     return env
 
 

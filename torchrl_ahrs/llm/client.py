@@ -1,6 +1,7 @@
 """One LLM client over litellm: timeouts, retries with backoff, a JSONL call log, a disk cache, replay.
 
-Every :meth:`LLMClient.complete` call writes one JSON line to ``<run_dir>/llm_calls.jsonl``:
+Every :meth:`LLMClient.complete` call writes one JSON line to the calls log its caller names (a run's
+``llm_calls.jsonl``, see :mod:`torchrl_ahrs.app.run_dir`):
 time, purpose, model, prompt hash, prompt (the messages), response, parsed decision, parse error,
 latency, tokens, cost, attempts, error, and whether the answer came from the cache or a replay. The
 API key comes from the environment variable named by ``llm.api_key_env`` (preferred) or from
@@ -13,7 +14,8 @@ API key comes from the environment variable named by ``llm.api_key_env`` (prefer
   context window) and authentication errors are not retried.
 
 * **Cache** (``llm.cache_dir``): answers keyed by model + messages; a rerun with the same prompts is free.
-* **Replay** (``llm=replay llm.replay_from=<run dir>``): answers come only from that run's log, matched
+* **Replay** (``llm=replay llm.replay_from=<run dir>``; the application layer turns a run directory into
+  its calls log): answers come only from that log, matched
   by prompt hash in the order they were recorded; a miss raises :class:`ReplayMiss`, which stops the
   run (a replay that silently diverged would be worse).
 
@@ -39,7 +41,6 @@ from typing import Any
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
 
 log = logging.getLogger(__name__)
-CALLS_FILE = "llm_calls.jsonl"
 Messages = list[dict[str, str]]
 # errors that a retry cannot fix
 _NON_RETRYABLE = (
@@ -109,7 +110,7 @@ class LLMClient:
 
     Args:
         config: model, endpoint, sampling, timeout/retry settings, cache and replay locations.
-        run_dir: where ``llm_calls.jsonl`` is appended (None = no log).
+        calls_path: the JSONL file each call is appended to (None = no log).
         sleep: the backoff sleep (tests pass a no-op).
 
     Example:
@@ -121,10 +122,10 @@ class LLMClient:
     """
 
     def __init__(
-        self, config: LLMConfig, run_dir: str | Path | None = None, sleep: Callable[[float], None] = time.sleep
+        self, config: LLMConfig, calls_path: str | Path | None = None, sleep: Callable[[float], None] = time.sleep
     ):
         self.config = config
-        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.calls_path = Path(calls_path) if calls_path is not None else None
         self.sleep = sleep
         self._lock = threading.Lock()
         self._replay: dict[str, deque[dict]] | None = None
@@ -264,10 +265,9 @@ class LLMClient:
         temporary.replace(path)
 
     @staticmethod
-    def _load_replay(run_dir: Path) -> dict[str, deque[dict]]:
-        path = run_dir / CALLS_FILE if run_dir.is_dir() else run_dir
-        if not path.exists():
-            raise FileNotFoundError(f"replay: no {CALLS_FILE} at {path}")
+    def _load_replay(path: Path) -> dict[str, deque[dict]]:
+        if not path.is_file():
+            raise FileNotFoundError(f"replay: no calls log at {path}")
         recorded: dict[str, deque[dict]] = defaultdict(deque)
         for line in path.read_text().splitlines():
             if line.strip():
@@ -286,7 +286,7 @@ class LLMClient:
 
     # ---------------------------------------------------------------- the log
     def _log(self, purpose: str, digest: str, messages: Messages, reply: LLMReply) -> None:
-        if self.run_dir is None:
+        if self.calls_path is None:
             return
         entry = {
             "time": time.time(),
@@ -306,8 +306,8 @@ class LLMClient:
             "source": reply.source,
         }
         with self._lock:
-            self.run_dir.mkdir(parents=True, exist_ok=True)
-            with open(self.run_dir / CALLS_FILE, "a") as handle:
+            self.calls_path.parent.mkdir(parents=True, exist_ok=True)
+            with open(self.calls_path, "a") as handle:
                 handle.write(json.dumps(entry, default=str) + "\n")
 
 

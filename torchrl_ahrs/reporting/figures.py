@@ -12,7 +12,7 @@ matplotlib.use("Agg")  # files only: no display on a server or in CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from torchrl_ahrs.reporting.runs import Run, method_rank  # noqa: E402
+from torchrl_ahrs.reporting.records import Run, method_rank  # noqa: E402
 from torchrl_ahrs.reporting.stats import mean_band, mean_std  # noqa: E402
 
 

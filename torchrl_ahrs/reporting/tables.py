@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from torchrl_ahrs.reporting.runs import Run, method_rank
+from torchrl_ahrs.reporting.records import Run, method_rank
 from torchrl_ahrs.reporting.stats import bootstrap_ci, change_percent, interquartile_mean, mean_std
 
 BASELINE = "ppo"

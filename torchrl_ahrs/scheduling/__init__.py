@@ -1,6 +1,6 @@
 """AHRS scheduling: rule repositories, return statistics, selectors and the RuleScheduler hook.
 
-``build_scheduler(cfg, estimator, components, run_dir, logger)`` turns the Hydra config into a
+``build_scheduler(cfg, estimator, components, decisions_path, logger, llm_calls_path)`` turns the Hydra config into a
 ready :class:`RuleScheduler`:
 
 * ``cfg.method.selector``: ``constant`` | ``fixed`` (with ``cfg.method.rule``) | ``random`` |
@@ -66,7 +66,7 @@ def llm_is_offline(cfg: Any) -> bool:
 
 
 def build_selector(
-    cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
+    cfg: Any, repository: RuleRepository, components: list[str], llm_calls_path: Path | None = None
 ) -> tuple[Selector, str]:
     """The selector named by ``cfg.method.selector`` and a note to attach to every decision ('' if none)."""
     name = _select(cfg, "method.selector", "constant")
@@ -100,7 +100,7 @@ def build_selector(
     if name in LLM_SELECTORS:
         from torchrl_ahrs.scheduling.llm_selectors import build_llm_selector
 
-        return build_llm_selector(name, cfg, repository, components, run_dir), note
+        return build_llm_selector(name, cfg, repository, components, llm_calls_path), note
     raise ValueError(f"unknown selector {name!r}; choose constant, fixed, random, bandit, llm or direct")
 
 
@@ -108,10 +108,12 @@ def build_scheduler(
     cfg: Any,
     estimator: Any,
     components: list[str] | None = None,
-    run_dir: Path | None = None,
+    decisions_path: Path | None = None,
     logger: Any = None,
+    llm_calls_path: Path | None = None,
 ) -> RuleScheduler:
-    """A :class:`RuleScheduler` configured from the whole Hydra config (or a plain dict).
+    """A :class:`RuleScheduler` configured from the whole Hydra config (or a plain dict); it appends its
+    decisions to ``decisions_path`` and an LLM selector its calls to ``llm_calls_path`` (None: not written).
 
     Every key has a default (``method.selector=constant``, ``scheduler.interval=100``,
     ``scheduler.base_weight=0.5``, ``scheduler.history_length=5``, ``scheduler.blocking=true``,
@@ -126,7 +128,7 @@ def build_scheduler(
         >>> class Estimator:
         ...     weights = torch.ones(2)
         ...     def set_weights(self, w): self.weights = w.clone()
-        >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"], run_dir=None)
+        >>> sched = build_scheduler(cfg, Estimator(), ["a", "b"])
         >>> sched.selector.name, sched.interval, sched.weights.tolist()
         ('fixed', 2, [0.5, 0.5])
         >>> build_scheduler({"method": {"selector": "bandit"}}, Estimator(), ["a", "b"]).selector.name
@@ -135,8 +137,7 @@ def build_scheduler(
     components = _components_of(estimator, components)
     rules_path = _select(cfg, "scheduler.rules")
     repository = load_repository(rules_path, validate=rules_path is not None)
-    run_dir = Path(run_dir) if run_dir is not None else None
-    selector, note = build_selector(cfg, repository, list(components), run_dir)
+    selector, note = build_selector(cfg, repository, list(components), llm_calls_path)
     initial = _select(cfg, "method.initial_weights")
     base_weight = float(_select(cfg, "scheduler.base_weight", 0.5))
     if initial is None:  # the config's documented meaning of null: base_weight for every component
@@ -152,7 +153,7 @@ def build_scheduler(
         initial_weights=list(initial),
         blocking=bool(_select(cfg, "scheduler.blocking", True)),
         logger=logger,
-        run_dir=run_dir,
+        decisions_path=decisions_path,
         note=note,
     )
     log.info(

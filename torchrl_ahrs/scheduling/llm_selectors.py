@@ -54,12 +54,13 @@ class _LLMSelectorBase(Selector):
 
     @staticmethod
     def client_for(
-        model: str, api_base: str | None = None, run_dir: str | Path | None = None, **options: Any
+        model: str, api_base: str | None = None, calls_path: str | Path | None = None, **options: Any
     ) -> LLMClient:
-        """An :class:`LLMClient` for ``model`` (a litellm string); ``options`` are :class:`LLMConfig` fields."""
+        """An :class:`LLMClient` for ``model`` (a litellm string) logging its calls to ``calls_path``;
+        ``options`` are :class:`LLMConfig` fields."""
         if not model:
             raise ValueError("an LLM selector needs a model string, e.g. 'openai/gpt-4o'")
-        return LLMClient(LLMConfig(name="python", model=model, api_base=api_base, **options), run_dir=run_dir)
+        return LLMClient(LLMConfig(name="python", model=model, api_base=api_base, **options), calls_path=calls_path)
 
     def settings(self) -> tuple[list[str], float, int]:
         """``(components, base_weight, interval)``; unset ones are an error naming the fix."""
@@ -137,7 +138,7 @@ class LLMRuleSelector(_LLMSelectorBase):
         *,
         repository: RuleRepository | None = None,
         task: Mapping[str, Any] | None = None,
-        run_dir: str | Path | None = None,
+        calls_path: str | Path | None = None,
         **options: Any,
     ) -> LLMRuleSelector:
         """The AHRS selector on ``model`` over ``repository`` (default: the shipped rules), no Hydra.
@@ -147,7 +148,7 @@ class LLMRuleSelector(_LLMSelectorBase):
             >>> selector.client.config.model, len(selector.repository) == len(load_repository()), selector.interval
             ('openai/gpt-4o', True, None)
         """
-        client = cls.client_for(model, api_base, run_dir, **options)
+        client = cls.client_for(model, api_base, calls_path, **options)
         return cls(client, repository if repository is not None else load_repository(), task)
 
     def messages(self, context: DecisionContext) -> list[dict[str, str]]:
@@ -181,11 +182,11 @@ class DirectWeightSelector(_LLMSelectorBase):
         api_base: str | None = None,
         *,
         task: Mapping[str, Any] | None = None,
-        run_dir: str | Path | None = None,
+        calls_path: str | Path | None = None,
         **options: Any,
     ) -> DirectWeightSelector:
         """The AHRS-D selector on ``model``, no Hydra (see :meth:`LLMRuleSelector.from_model`)."""
-        return cls(cls.client_for(model, api_base, run_dir, **options), task)
+        return cls(cls.client_for(model, api_base, calls_path, **options), task)
 
     @property
     def expected(self) -> str:  # type: ignore[override]
@@ -207,13 +208,14 @@ class DirectWeightSelector(_LLMSelectorBase):
 
 
 def build_llm_selector(
-    name: str, cfg: Any, repository: RuleRepository, components: list[str], run_dir: Path | None
+    name: str, cfg: Any, repository: RuleRepository, components: list[str], llm_calls_path: Path | None
 ) -> Selector:
     """``llm`` or ``direct`` from the config's ``llm`` and ``task`` sections (a Hydra config or a dict);
-    ``base_weight`` and ``interval`` come from the scheduler that receives the selector."""
+    ``base_weight`` and ``interval`` come from the scheduler that receives the selector; every call is
+    logged to ``llm_calls_path``."""
     cfg = cfg if OmegaConf.is_config(cfg) else OmegaConf.create(dict(cfg))
     llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
-    client = LLMClient(LLMConfig.from_cfg(llm_cfg), run_dir=run_dir)
+    client = LLMClient(LLMConfig.from_cfg(llm_cfg), calls_path=llm_calls_path)
     task: Any = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
     if name == "llm":
         return LLMRuleSelector(client, repository, task, components)

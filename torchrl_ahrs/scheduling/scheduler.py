@@ -41,7 +41,6 @@ from torchrl_ahrs.scheduling.selectors import BanditSelector, Decision, Decision
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 log = logging.getLogger(__name__)
-DECISIONS_FILE = "scheduler_decisions.jsonl"
 
 
 class WeightedEstimator(Protocol):
@@ -71,7 +70,7 @@ class RuleScheduler(TrainerHookBase):
         initial_weights: weights ``[K]`` installed at construction (default: keep the estimator's).
         blocking: ``False`` runs the selector in a background thread.
         logger: optional TorchRL logger (``log_scalar``) for decision scalars.
-        run_dir: where ``scheduler_decisions.jsonl`` is written (one line per decision point).
+        decisions_path: the JSONL file that gets one line per decision point (None = none written).
         note: text attached to every decision log (e.g. that the bandit stands in for an LLM).
 
     Example:
@@ -105,7 +104,7 @@ class RuleScheduler(TrainerHookBase):
         initial_weights: list[float] | torch.Tensor | None = None,
         blocking: bool = True,
         logger: Any = None,
-        run_dir: str | Path | None = None,
+        decisions_path: str | Path | None = None,
         note: str = "",
     ):
         if interval < 1:
@@ -121,7 +120,7 @@ class RuleScheduler(TrainerHookBase):
         self.base_weight = float(base_weight)
         self.blocking = blocking
         self.logger = logger
-        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.decisions_path = Path(decisions_path) if decisions_path is not None else None
         self.note = note
         _share_settings(self.selector, components=self.components, base_weight=self.base_weight, interval=self.interval)
         self.statistics = ReturnStatistics(len(self.components), history_length)
@@ -135,13 +134,18 @@ class RuleScheduler(TrainerHookBase):
         if initial.shape != (len(self.components),) or not torch.isfinite(initial).all():
             what = "the estimator's weights" if keep else "initial_weights"
             raise ValueError(f"{what} must be {len(self.components)} finite numbers, got {initial.tolist()}")
-        self.weights = initial.float()
         if not keep:
-            self.estimator.set_weights(self.weights.clone())
+            self.estimator.set_weights(initial.float())
         self._executor: ThreadPoolExecutor | None = None
         self._pending: tuple[Future, DecisionContext] | None = None
         if note:
             log.warning("RuleScheduler: %s", note)
+
+    @property
+    def weights(self) -> torch.Tensor:
+        """The current weights ``[K]``: a copy of the estimator's, the one place they live (and are
+        checkpointed, with the estimator)."""
+        return self.estimator.weights.detach().clone().float()
 
     def set_keys(self, *, episode_reward: Any = None) -> RuleScheduler:
         """Where the episode returns are read: ``("next", *episode_reward, c)``; returns ``self``."""
@@ -253,8 +257,8 @@ class RuleScheduler(TrainerHookBase):
         if weights.shape != self.weights.shape or not torch.isfinite(weights).all():
             self._record(decision, f"invalid weights {weights.tolist()}; weights kept")
             return
-        self.weights, self.rule_id = weights.float(), rule_id
-        self.estimator.set_weights(self.weights.clone())
+        self.estimator.set_weights(weights.float())
+        self.rule_id = rule_id
         self.decision_index += 1
         self._record(decision, decision.note, context.summary, applied=True)
 
@@ -279,8 +283,8 @@ class RuleScheduler(TrainerHookBase):
             self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=step)
             for c, w in zip(self.components, self.weights.tolist(), strict=True):
                 self.logger.log_scalar(f"scheduler/decision_weight_{c}", w, step=step)
-        if self.run_dir is not None:
-            self.run_dir.mkdir(parents=True, exist_ok=True)
+        if self.decisions_path is not None:
+            self.decisions_path.parent.mkdir(parents=True, exist_ok=True)
             entry = {
                 "time": time.time(),
                 "iteration": self.iteration,
@@ -296,7 +300,7 @@ class RuleScheduler(TrainerHookBase):
                 "message": message,
                 "note": self.note,
             }
-            with open(self.run_dir / DECISIONS_FILE, "a") as handle:
+            with open(self.decisions_path, "a") as handle:
                 handle.write(json.dumps(entry) + "\n")
 
     # ---------------------------------------------------------------- checkpointing
@@ -306,7 +310,6 @@ class RuleScheduler(TrainerHookBase):
             "frames": self.frames,
             "decision_index": self.decision_index,
             "rule_id": self.rule_id,
-            "weights": self.weights.clone(),
             "statistics": self.statistics.state_dict(),
             "selector": self.selector.state_dict(),
         }
@@ -316,8 +319,6 @@ class RuleScheduler(TrainerHookBase):
         self.frames = int(state_dict["frames"])
         self.decision_index = int(state_dict["decision_index"])
         self.rule_id = state_dict["rule_id"]
-        self.weights = state_dict["weights"].clone().float()
-        self.estimator.set_weights(self.weights.clone())
         self.statistics.load_state_dict(state_dict["statistics"])
         self.selector.load_state_dict(state_dict["selector"])
 

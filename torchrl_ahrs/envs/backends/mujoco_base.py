@@ -53,6 +53,9 @@ Hooks (override in the subclass):
   worker threads on disjoint slices: read ``self.ctrl[env_slice]`` (the targets), write nothing shared.
   Alternatively, build PD into the MJCF with ``<position kp=.. kv=..>`` actuators and skip this hook.
 * ``after_physics_step()`` — optional bookkeeping between physics and rewards.
+* ``episode_state`` (class attribute) — names of the per-env attributes a task carries from one step to
+  the next (targets, commands, previous potentials, history buffers): they are part of the env's
+  snapshot, so leave none out (``tests/test_env_snapshot.py`` checks every task).
 * ``observation() -> Tensor [N, obs_dim]`` (cast to float32 by the base); required.
 * ``reward_terms() -> dict[str, Tensor [N]]``; required. Names are fixed by ``reward_term_names``.
 * ``total_reward(terms) -> Tensor [N]`` — default Σ terms (override for the task's own formula).
@@ -64,6 +67,12 @@ TensorDict layout written per step (batch size [N])::
     ("info", "reward_<term>")     float32 [N]        one per reward term
     "reward"                      float32 [N, 1]     total_reward(terms)
     "done", "terminated", "truncated"   bool [N, 1]
+
+Snapshot (exact resume): ``state_dict()`` holds, under ``_extra_state``, everything the next step
+depends on — each ``MjData``'s full integration state (``mjSTATE_INTEGRATION``: time, qpos, qvel, act,
+warm start, ctrl, applied forces, mocap, ...), the stacked ``state_fields``, ``ctrl``, ``action``,
+``episode_steps``, the reset-noise generator's state and the task's ``episode_state`` attributes.
+``load_state_dict`` puts them back, so an env built anew continues the episodes bit for bit.
 
 Each env resets on its own termination or time limit through TorchRL's ``"_reset"`` mask; the others
 keep their MjData untouched. A task builder then appends
@@ -102,6 +111,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, TransformedEnv
 
+from torchrl_ahrs.envs.common.snapshot import mujoco_snapshot, restore_mujoco_snapshot
 from torchrl_ahrs.rewards.components import RewardComponents
 
 REWARD_TERM_PREFIX = "reward_"
@@ -134,6 +144,7 @@ class BatchedMujocoEnv(EnvBase):
     reward_term_names: tuple[str, ...] = ()
     state_fields: tuple[str, ...] = ()
     per_substep_control: bool = False
+    episode_state: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -369,6 +380,15 @@ class BatchedMujocoEnv(EnvBase):
         self.action[ids] = 0.0
         self.episode_steps[ids] = 0
         self.on_reset(env_ids)
+
+    # ---------------------------------------------------------------- snapshot
+    def get_extra_state(self) -> dict:
+        """Everything the next step depends on (see the module docstring); ``state_dict()`` carries it."""
+        return mujoco_snapshot(self)
+
+    def set_extra_state(self, state: dict) -> None:
+        """Restores a :meth:`get_extra_state` snapshot of an env with the same model and ``num_envs``."""
+        restore_mujoco_snapshot(self, state)
 
     def _set_seed(self, seed: int | None) -> None:
         self.rng = np.random.default_rng(seed)

@@ -109,6 +109,7 @@ class AntEnv(BatchedMujocoEnv):
     """
 
     reward_term_names = ANT_TERMS
+    episode_state = ("potential", "prev_potential")
 
     def __init__(
         self,

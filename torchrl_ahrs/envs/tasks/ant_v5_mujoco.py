@@ -35,6 +35,7 @@ class AntV5Mujoco(BatchedMujocoEnv):
     """
 
     reward_term_names = ("forward", "ctrl", "contact", "survive")
+    episode_state = ("prev_x",)
     state_fields = ("xpos", "cfrc_ext")
 
     def __init__(self, num_envs: int, num_threads: int | None = None, seed: int = 0):

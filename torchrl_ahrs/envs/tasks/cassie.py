@@ -79,6 +79,7 @@ class CassieEnv(BatchedMujocoEnv):
     """
 
     reward_term_names = tuple(lr.CASSIE_REWARD_SCALES)
+    episode_state = ("commands", "last_action", "last_dof_vel", "feet_air_time", "last_contact", "fallen", "terms")
     state_fields = ("sensordata", "actuator_force")
 
     def __init__(

@@ -52,6 +52,7 @@ class PointReachEnv(BatchedMujocoEnv):
     """
 
     reward_term_names = ("distance", "arrival", "ctrl")
+    episode_state = ("target",)
 
     def __init__(
         self,

@@ -1,4 +1,5 @@
-"""Finding and reading the run directories of a sweep (no statistics, no plotting).
+"""Finding and reading the run directories of a sweep into :class:`~torchrl_ahrs.reporting.records.Run`
+records (no statistics, no plotting); file names from :mod:`torchrl_ahrs.app.run_dir`.
 
 A sweep directory holds one run directory per job, anywhere below it (``python -m torchrl_ahrs.sweep``
 puts them at ``<task>/<method>/seed_<seed>``). A run directory is recognised by ``config.yaml`` (written by
@@ -16,9 +17,7 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,57 +25,9 @@ import numpy as np
 import torch
 import yaml
 
+from torchrl_ahrs.app.run_dir import CONFIG, HYDRA, MULTIRUN, RunDirectory
+from torchrl_ahrs.reporting.records import Run, method_label, method_rank
 from torchrl_ahrs.reporting.stats import final_return, final_window_mask
-
-CHECKPOINT_FILE = "checkpoint.pt"
-DECISIONS_FILE = "scheduler_decisions.jsonl"
-LLM_CALLS_FILE = "llm_calls.jsonl"
-SCALARS_DIR = Path("metrics") / "scalars"
-# the paper's column order; other methods follow alphabetically
-METHOD_ORDER = ("ppo", "hdppo", "ahrs_wo_a", "ahrs", "ahrs_r", "ahrs_d", "ppo_a", "hdppo_a")
-
-
-@dataclass
-class Run:
-    """One run directory of a sweep and what the report needs from it.
-
-    ``curves`` maps a scalar name (``return/total``, ``return/<c>``, ``weight/<c>``) to (steps [R], values
-    [R]); ``final`` maps ``return/total`` and ``return/<c>`` to the final return (NaN when unavailable).
-
-    Example:
-        >>> run = Run(None, "point_reach", "ppo", 2, "missing", "no run directory for this seed")
-        >>> run.ok, run.final_return
-        (False, nan)
-    """
-
-    path: Path | None
-    task: str
-    method: str
-    seed: int
-    status: str
-    reason: str = ""
-    total_frames: int = 0
-    collected_frames: int = 0
-    components: list[str] = field(default_factory=list)
-    curves: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    final: dict[str, float] = field(default_factory=dict)
-    decisions: list[dict[str, Any]] = field(default_factory=list)
-    llm_calls: list[dict[str, Any]] = field(default_factory=list)
-    llm_name: str = "offline"
-    where: str = ""  # <sweep dir name>/<path inside it>, for the report (absolute paths do not travel)
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
-
-    @property
-    def scheduled(self) -> bool:
-        """Whether a selector changed the weights during training (not PPO's constant weights)."""
-        return any(d.get("selector") not in (None, "constant") for d in self.decisions)
-
-    @property
-    def final_return(self) -> float:
-        return self.final.get("return/total", math.nan)
 
 
 def read_scalar(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -104,18 +55,10 @@ def read_jsonl(path: Path) -> list[dict[str, Any]]:
     return entries
 
 
-def method_label(config: dict[str, Any]) -> str:
-    """The method's name, plus the LLM backend when an LLM (not the offline stand-in) chose the weights."""
-    method = config.get("method", {}) or {}
-    llm = (config.get("llm", {}) or {}).get("name", "offline")
-    uses_llm = method.get("selector") in ("llm", "direct")
-    return f"{method.get('name', '?')}[{llm}]" if uses_llm and llm != "offline" else str(method.get("name", "?"))
-
-
 def load_run(path: Path) -> Run:
     """Reads one run directory (config, scalars, decisions, LLM calls) and decides its status."""
-    config_path = path / "config.yaml" if (path / "config.yaml").is_file() else path / ".hydra" / "config.yaml"
-    config = yaml.safe_load(config_path.read_text()) or {}
+    directory = RunDirectory(path)
+    config = yaml.safe_load(directory.saved_config.read_text()) or {}
     run = Run(
         path=path,
         task=str(config.get("task", {}).get("name", "?")),
@@ -125,7 +68,7 @@ def load_run(path: Path) -> Run:
         total_frames=int(config.get("trainer", {}).get("total_frames", 0)),
         llm_name=str((config.get("llm", {}) or {}).get("name", "offline")),
     )
-    scalars = path / SCALARS_DIR
+    scalars = directory.scalars
     for group in ("return", "weight"):
         for csv_path in sorted((scalars / group).glob("*.csv")):
             run.curves[f"{group}/{csv_path.stem}"] = read_scalar(csv_path)
@@ -136,10 +79,10 @@ def load_run(path: Path) -> Run:
     for name, (steps, values) in run.curves.items():
         if name.startswith("return/"):
             run.final[name] = final_return(steps, values, run.total_frames)
-    run.decisions = read_jsonl(path / DECISIONS_FILE)
-    run.llm_calls = read_jsonl(path / LLM_CALLS_FILE)
+    run.decisions = read_jsonl(directory.decisions)
+    run.llm_calls = read_jsonl(directory.llm_calls)
 
-    checkpoint = path / CHECKPOINT_FILE
+    checkpoint = directory.checkpoint
     if checkpoint.is_file():
         try:
             state = torch.load(checkpoint, map_location="cpu", weights_only=False)
@@ -148,7 +91,7 @@ def load_run(path: Path) -> Run:
             run.status, run.reason = "incomplete", f"unreadable checkpoint ({type(error).__name__})"
             return run
     if not checkpoint.is_file():
-        run.status, run.reason = "incomplete", "no checkpoint.pt (crashed, killed or still running)"
+        run.status, run.reason = "incomplete", f"no {checkpoint.name} (crashed, killed or still running)"
     elif run.collected_frames < run.total_frames:
         run.status = "incomplete"
         run.reason = f"checkpoint at {run.collected_frames} of {run.total_frames} frames"
@@ -162,20 +105,20 @@ def load_run(path: Path) -> Run:
 
 
 def find_run_dirs(sweep_dir: Path) -> list[Path]:
-    """Every directory below ``sweep_dir`` holding ``config.yaml`` or ``.hydra/config.yaml``; symbolic
-    links are followed, so a sweep can be assembled from runs of other sweeps."""
+    """Every run directory below ``sweep_dir`` (:meth:`RunDirectory.is_run`); symbolic links are followed,
+    so a sweep can be assembled from runs of other sweeps."""
     found = set()
     for root, _, files in os.walk(sweep_dir, followlinks=True):
         here = Path(root)
-        if "config.yaml" in files:
-            found.add(here.parent if here.name == ".hydra" else here)
+        if CONFIG in files:
+            found.add(here.parent if here.name == HYDRA else here)
     return sorted(found)
 
 
 def expected_seeds(sweep_dir: Path) -> list[int] | None:
     """The seeds the sweep asked for, from Hydra's ``multirun.yaml`` (``hydra.sweeper.params.seed`` or a
     ``seed=a,b,c`` override); None when the file or the parameter is absent or not a plain list."""
-    path = sweep_dir / "multirun.yaml"
+    path = sweep_dir / MULTIRUN
     if not path.is_file():
         return None
     hydra = (yaml.safe_load(path.read_text()) or {}).get("hydra", {}) or {}
@@ -209,9 +152,3 @@ def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
     for task, method, seed in sorted(wanted - present):
         runs.append(Run(None, task, method, seed, "missing", "no run directory for this seed"))
     return sorted(runs, key=lambda r: (r.task, method_rank(r.method), r.seed))
-
-
-def method_rank(method: str) -> tuple[int, str]:
-    """Sort key putting methods in the paper's order."""
-    base = method.split("[", 1)[0]
-    return (METHOD_ORDER.index(base) if base in METHOD_ORDER else len(METHOD_ORDER), method)
