@@ -82,6 +82,35 @@ def test_bench_envpool_tasks_runs(monkeypatch, capsys):
     assert out.splitlines()[-1].split()[0] == "ant_v5"
 
 
+def test_bench_minibatch_overhead_prints_every_measurement(monkeypatch, capsys):
+    out = run_script("bench_minibatch_overhead.py", ["--minibatch", "512", "--steps", "2"], monkeypatch, capsys)
+    for name in ("loss_step functional=True", "loss_step functional=False", "serve_all_keys", "serve_loss_keys"):
+        assert name in out
+
+
+def test_record_learning_run_writes_curve_evaluation_and_config(tmp_path, monkeypatch):
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import record_learning_run
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    run = tmp_path / "run"
+    scalars = run / "metrics" / "scalars"
+    (scalars / "return").mkdir(parents=True)
+    (scalars / "reward").mkdir()
+    (scalars / "return" / "total.csv").write_text("2048,-5.0\n6144,12.5\n")  # no episode ended at 4096
+    (scalars / "reward" / "total.csv").write_text("2048,0.1\n4096,0.2\n6144,0.3\n")
+    (run / "evaluation.json").write_text('{"return": 1}')
+    (run / "config.yaml").write_text("seed: 0\n")
+    monkeypatch.setattr(record_learning_run, "RESULTS", tmp_path / "results")
+    out = record_learning_run.record(run, "demo", note="wall 1 s")
+    rows = (out / "curve.csv").read_text().splitlines()
+    assert rows[0].startswith("frames,return_total,reward_per_step")
+    assert rows[1:] == ["2048,-5.0,0.1,,", "4096,,0.2,,", "6144,12.5,0.3,,"]
+    assert (out / "evaluation.json").read_text() == '{"return": 1}'
+    assert "wall 1 s" in (out / "timing.txt").read_text()
+
+
 def test_bench_mjx_runs(monkeypatch, capsys):
     pytest.importorskip("mujoco.mjx", reason='JAX / mujoco-mjx absent: pip install -e ".[mjx]" runs this test')
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")

@@ -126,3 +126,29 @@ def test_ant_v5_components_sum_to_native_reward():
     assert (reward["ctrl"] < 0).all()
     assert (reward["contact"] <= 0).all()
     assert np.isclose(reward["survive"].max().item(), 1.0)
+
+
+def test_ant_v5_steps_like_gymnasium_from_the_same_state():
+    """Differential against gymnasium's own Ant-v5 (the oracle): from EnvPool's reset state, the same
+    actions give the same observations, every reward term and the same termination flags."""
+    gym = pytest.importorskip("gymnasium")
+    pool = EnvPoolEnv("Ant-v5", num_envs=1, seed=3)._pool
+    reference = gym.make("Ant-v5").unwrapped
+    reference.reset(seed=0)
+    obs, _ = pool.reset()
+    # the observation excludes the torso's x, y (qpos[:2]); the dynamics do not depend on them.
+    # No re-synchronisation afterwards: set_state refreshes MuJoCo's body positions, which a plain step
+    # leaves one substep old, so it would shift gymnasium's x displacement (reward_forward) by ~3 %.
+    reference.set_state(np.concatenate([[0.0, 0.0], obs[0, :13]]), obs[0, 13:27])
+    rng = np.random.default_rng(0)
+    for step in range(40):  # rounding differences grow chaotically through contacts: ~1e-8 after ~60 steps
+        action = rng.uniform(-1.0, 1.0, size=(1, 8))
+        obs, reward, terminated, truncated, info = pool.step(action)
+        ref_obs, ref_reward, ref_terminated, _, ref_info = reference.step(action[0])
+        np.testing.assert_allclose(obs[0], ref_obs, atol=1e-9, err_msg=f"step {step}")
+        for term in ("reward_forward", "reward_ctrl", "reward_contact", "reward_survive"):
+            assert info[term][0] == pytest.approx(ref_info[term], abs=1e-9), (term, step)
+        assert reward[0] == pytest.approx(ref_reward, abs=1e-5)  # EnvPool's reward is float32
+        assert bool(terminated[0]) == ref_terminated and not truncated[0]
+        if ref_terminated:
+            break

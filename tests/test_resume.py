@@ -135,7 +135,8 @@ def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(tmp_path, monk
 
 @pytest.mark.slow
 def test_resume_is_exact_on_a_batched_mujoco_task(tmp_path, monkeypatch):
-    overrides = [*TINY[2:], "task=quadcopter", "method=ahrs_wo_a"]
+    # with the presets' regime: per-head value normalisation (its running statistics) and value clipping
+    overrides = [*TINY[2:], "task=quadcopter", "method=ahrs_wo_a", "ppo.value_norm=running", "ppo.clip_value=0.2"]
     whole, cut = RunDirectory(tmp_path / "whole"), RunDirectory(tmp_path / "cut")
     train(make_cfg(*overrides), whole.path)
     train_until(make_cfg(*overrides), cut.path, 1, monkeypatch)

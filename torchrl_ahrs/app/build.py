@@ -23,6 +23,7 @@ from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
 
 
@@ -95,15 +96,22 @@ def build_networks(cfg: DictConfig, make_envs: EnvFactory, with_critic: bool = T
 
 
 def build_estimator_and_loss(cfg: DictConfig, networks: Networks, components: Sequence[str]):
-    """:class:`WeightedMultiGAE` over the K components and the PPO loss that trains on its mixed advantage."""
+    """:class:`WeightedMultiGAE` over the K components and the PPO loss that trains on its mixed advantage.
+
+    With ``ppo.value_norm`` the loss regresses the critic's normalised heads while the estimator reads
+    them mapped back to reward units (training/value_norm.py); the statistics live in the estimator's
+    value network (checkpointed with it) and are reachable as ``estimator.value_norm``."""
     ppo = cfg.ppo
+    value_norm = make_value_norm(ppo.get("value_norm"), len(components))
+    gae_critic = denormalized_critic(networks.critic, value_norm) if value_norm is not None else networks.critic
     estimator = WeightedMultiGAE(
         list(components),
         gamma=ppo.gamma,
         lmbda=ppo.lmbda,
-        value_network=networks.critic,
+        value_network=gae_critic,
         component_scale=ppo.component_scale,
     )
+    estimator.value_norm = value_norm
     loss = HybridClipPPOLoss(
         networks.actor,
         networks.critic,
@@ -113,6 +121,10 @@ def build_estimator_and_loss(cfg: DictConfig, networks: Networks, components: Se
         critic_coeff=ppo.critic_coeff,
         loss_critic_type="l2",
         normalize_advantage=ppo.normalize_advantage,
+        clip_value=ppo.get("clip_value"),  # in normalised units when value_norm is on
+        # the modules are called as they are: the functional parameter swap (to_module per call) cost ~1 ms
+        # per minibatch, a third of a small-minibatch loss step, and nothing here needs functional calls
+        functional=False,
     )
     return estimator, loss
 

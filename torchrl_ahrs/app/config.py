@@ -109,6 +109,13 @@ def validate_config(cfg: DictConfig) -> None:
         )
     if not 0 <= cfg.ppo.gamma <= 1 or not 0 <= cfg.ppo.lmbda <= 1:
         raise ConfigError(f"ppo.gamma and ppo.lmbda must lie in [0, 1], got {cfg.ppo.gamma}, {cfg.ppo.lmbda}")
+    ppo = cfg.ppo
+    if ppo.get("value_norm") not in (None, False, True, "running", "popart"):
+        raise ConfigError(f"ppo.value_norm must be running, popart or null, got {ppo.get('value_norm')!r}")
+    for name in ("clip_value", "kl_target"):
+        value = ppo.get(name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float) or value <= 0):
+            raise ConfigError(f"ppo.{name} must be a positive number or null, got {value!r}")
     components = resolve_components(cfg)
     known = set(cfg.task.components) | {"total"} | aux_leaves(cfg.method.get("auxiliary"))
     unknown = [name for name in components if name not in known]

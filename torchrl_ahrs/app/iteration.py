@@ -61,7 +61,9 @@ from torchrl_ahrs.training.hooks import (
     PPOMinibatches,
     loss_metrics,
 )
+from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
 from torchrl_ahrs.training.loggers import build_logger
+from torchrl_ahrs.training.value_norm import ValueTargetNormalization
 
 log = logging.getLogger("torchrl_ahrs.train")
 
@@ -95,7 +97,7 @@ class GlobalRNG(TrainerHookBase):
 def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
     """Registers every hook of one iteration on ``trainer``, in the order of the module docstring.
 
-    ``parts`` holds the run's pieces by name (``components``, ``estimator``, ``networks``, ``optimizer``,
+    ``parts`` holds the run's pieces by name (``components``, ``estimator``, ``loss``, ``networks``, ``optimizer``,
     ``scheduler``, ``collector``, ``checkpoint``, ``cfg``, ``run_dir``); optional hooks (critic
     normaliser, LR decay, video) are registered only when the run uses them.
     """
@@ -118,14 +120,24 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
             start_frames=int(parts.get("done_frames", 0)),
         ).register(trainer)
     # 3-4. advantages and PPO epochs
-    PPOMinibatches(parts["estimator"], num_minibatches(cfg), seed=int(cfg.seed)).register(trainer)
+    estimator, loss = parts["estimator"], parts["loss"]
+    value_norm = getattr(estimator, "value_norm", None)
+    PPOMinibatches(
+        estimator,
+        num_minibatches(cfg),
+        seed=int(cfg.seed),
+        keys=[*loss.in_keys, "advantage", "value_target", "state_value", "loc", "scale"],
+        post_estimate=ValueTargetNormalization(value_norm) if value_norm is not None else None,
+    ).register(trainer)
+    if cfg.ppo.get("kl_target"):  # adaptive KL schedule (training/kl_schedule.py), in place of the linear decay
+        AdaptiveKLLR(parts["optimizer"], networks.actor.module[0].module, target=cfg.ppo.kl_target).register(trainer)
     trainer.register_op("post_optim_complete_log", loss_metrics)
     ComponentShareLog(parts["components"], parts["estimator"]).register(trainer)  # share/<c> after the epochs
     # 5. after the update: normalisers absorb the batch, learning rate, policy weights to the collector
     obs_norm.register(trainer)
     if critic_norm is not None:
         critic_norm.register(trainer, "critic_obs_norm")
-    if cfg.trainer.anneal_lr:
+    if cfg.trainer.anneal_lr and not cfg.ppo.get("kl_target"):
         LinearLRDecay(parts["optimizer"], cfg.trainer.total_frames).register(trainer)
     update_weights = UpdateWeights(parts["collector"], update_weights_interval=1)
     update_weights.register(trainer)
@@ -173,7 +185,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     log.info("task %s, method %s, K=%d components %s", cfg.task.name, cfg.method.name, len(components), components)
     networks = build_networks(cfg, make_envs)
     estimator, loss = build_estimator_and_loss(cfg, networks, components)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5)
+    # fused: one kernel for all parameters; the per-tensor Python loop cost 1.7 ms per step against 0.27 ms
+    # (measured with [64, 64] networks, one thread), as much as the loss forward at small minibatches
+    optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5, fused=True)
 
     done_frames = resumed["state"]["collected_frames"] if resumed else 0
     if resumed:
@@ -208,6 +222,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     parts = dict(
         cfg=cfg, run_dir=run.path, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
         optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, done_frames=done_frames,
+        loss=loss,
     )  # fmt: skip
     register_iteration(trainer, parts)
     if resumed:

@@ -34,6 +34,18 @@ class PPOMinibatches(TrainerHookBase):
     replacement), which is what PPO's epochs mean. Register with ``optim_steps_per_batch =
     num_minibatches`` on the trainer.
 
+    Args:
+        estimator: ``batch -> batch`` writing advantage and value targets (``WeightedMultiGAE``).
+        num_minibatches: minibatches per epoch.
+        seed: the shuffling generator's seed.
+        keys: the entries the loss (and the per-minibatch hooks) read; only these are gathered into
+            minibatches (the batch also holds ``next``, ``info``, episode accumulators... that the loss
+            never reads, and gathering them cost more than the loss step itself at small minibatches).
+            ``None`` gathers everything.
+        post_estimate: ``(batch, new_batch: bool) -> batch`` applied after each epoch's estimate, e.g.
+            :class:`~torchrl_ahrs.training.value_norm.ValueTargetNormalization`; ``new_batch`` is true on
+            the first epoch of each collected batch.
+
     Example:
         >>> import torch
         >>> from tensordict import TensorDict
@@ -44,21 +56,35 @@ class PPOMinibatches(TrainerHookBase):
         True
     """
 
-    def __init__(self, estimator, num_minibatches: int, seed: int = 0):
+    def __init__(self, estimator, num_minibatches: int, seed: int = 0, keys=None, post_estimate=None):
         if num_minibatches < 1:
             raise ValueError(f"num_minibatches must be at least 1, got {num_minibatches}")
         self.estimator = estimator
         self.num_minibatches = num_minibatches
         self.generator = torch.Generator().manual_seed(seed)
+        self.keys = list(keys) if keys is not None else None
+        self.post_estimate = post_estimate
         self._minibatches: list[TensorDictBase] = []
+        self._new_batch = True
 
     def pre_epoch(self, batch: TensorDictBase) -> TensorDictBase:
         with torch.no_grad():
             batch = self.estimator(batch)
-        flat = batch.reshape(-1)
+        new_batch, self._new_batch = self._new_batch, False
+        # select: a new tensordict sharing the tensors, so post_estimate's rewrites stay out of `batch`
+        selected = batch.select(*self.keys, strict=False) if self.keys is not None else batch.clone(False)
+        if self.post_estimate is not None:
+            selected = self.post_estimate(selected, new_batch)
+        flat = selected.reshape(-1)
         order = torch.randperm(flat.shape[0], generator=self.generator)
-        self._minibatches = [flat[indices] for indices in order.chunk(self.num_minibatches)]
+        sizes = [len(chunk) for chunk in order.chunk(self.num_minibatches)]
+        # one gather per epoch, then contiguous views: a gather per minibatch costs a TensorDict index per key
+        self._minibatches = list(flat[order].split(sizes, 0))
         return batch
+
+    def start_batch(self) -> None:
+        """``pre_optim_steps``: a new collected batch begins (its first epoch comes next)."""
+        self._new_batch = True
 
     def next_minibatch(self, batch: TensorDictBase) -> TensorDictBase:
         if not self._minibatches:
@@ -72,6 +98,7 @@ class PPOMinibatches(TrainerHookBase):
         self.generator.set_state(state_dict["generator"])
 
     def register(self, trainer: Trainer, name: str = "ppo_minibatches") -> None:
+        trainer.register_op("pre_optim_steps", self.start_batch)
         trainer.register_op("pre_epoch", self.pre_epoch)
         trainer.register_op("process_optim_batch", self.next_minibatch)
         trainer.register_module(name, self)

@@ -1,0 +1,128 @@
+"""The pieces of the PPO regime: per-head value normalisation, adaptive-KL learning rate, minibatches,
+and GAE's bootstrap on truncated episodes.
+
+Oracles: ``torch.distributions.kl_divergence`` (the KL), numpy's mean/std (the statistics), hand-made
+one-step episodes whose advantages are known in closed form (the bootstrap).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+from torch.distributions import Independent, Normal, kl_divergence
+
+from torchrl_ahrs.training.hooks import PPOMinibatches
+from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR, gaussian_kl
+from torchrl_ahrs.training.value_norm import ValueTargetNormalization, denormalized_critic, make_value_norm
+from torchrl_ahrs.value import WeightedMultiGAE
+
+
+def test_gaussian_kl_matches_torch_distributions():
+    g = torch.Generator().manual_seed(0)
+    loc0, loc1 = torch.randn(16, 8, generator=g), torch.randn(16, 8, generator=g)
+    s0, s1 = torch.rand(16, 8, generator=g) + 0.1, torch.rand(16, 8, generator=g) + 0.1
+    expected = kl_divergence(Independent(Normal(loc0, s0), 1), Independent(Normal(loc1, s1), 1))
+    assert torch.allclose(gaussian_kl(loc0, s0, loc1, s1), expected, atol=1e-5)
+
+
+def _kl_hook(shift: float, target: float = 0.01, lr: float = 1e-3):
+    net = torch.nn.Sequential(torch.nn.Linear(3, 2), AddStateIndependentNormalScale(2, init_value=0.0))
+    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
+    observation = torch.randn(32, 3)
+    with torch.no_grad():
+        loc, scale = net(observation)
+    batch = TensorDict({"observation": observation, "loc": loc + shift, "scale": scale}, [32])
+    return AdaptiveKLLR(optimizer, net, target=target), optimizer, batch
+
+
+@pytest.mark.parametrize(
+    "shift, expected_lr",
+    [(0.0, 1.5e-3), (0.1, 1e-3), (1.0, 1e-3 / 1.5)],  # KL = 0, 2 * 0.005 (in band), 2 * 0.5 (above 2x)
+)
+def test_adaptive_kl_rule(shift, expected_lr):
+    hook, optimizer, batch = _kl_hook(shift)
+    losses = hook(batch, TensorDict({}, []))
+    assert losses["kl"].item() == pytest.approx(2 * shift**2 / 2, rel=1e-4)  # 2 dims of (shift)^2 / 2
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(expected_lr)
+
+
+def test_adaptive_kl_respects_bounds():
+    hook, optimizer, batch = _kl_hook(0.0, lr=9e-3)
+    hook(batch, TensorDict({}, []))
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(1e-2)
+
+
+def test_value_norm_statistics_per_head_match_numpy():
+    rng = np.random.default_rng(0)
+    chunks = [rng.normal([0.0, 500.0], [1.0, 200.0], size=(100, 2)) for _ in range(3)]
+    norm = make_value_norm("running", 2)
+    for chunk in chunks:
+        norm.update(torch.tensor(chunk, dtype=torch.float32))
+    all_values = np.concatenate(chunks)
+    assert np.allclose(norm.mean.numpy(), all_values.mean(0), rtol=1e-4)
+    assert np.allclose(norm.scale().numpy() ** 2, all_values.var(0), rtol=1e-3)
+    normalized = norm.normalize(torch.tensor(all_values, dtype=torch.float32)).numpy()
+    assert np.allclose(normalized.mean(0), 0.0, atol=1e-3) and np.allclose(normalized.std(0), 1.0, atol=1e-3)
+
+
+def test_denormalized_critic_shares_parameters_and_maps_to_reward_units():
+    net = TensorDictModule(torch.nn.Linear(3, 2), in_keys=["observation"], out_keys=["state_value"])
+    norm = make_value_norm("running", 2)
+    norm.update(torch.tensor([[0.0, 100.0], [10.0, 300.0]]))  # mu = (5, 200), sigma = (5, 100)
+    critic = denormalized_critic(net, norm)
+    td = TensorDict({"observation": torch.randn(4, 3)}, [4])
+    raw = net(td.clone())["state_value"]
+    out = critic(td.clone())["state_value"]
+    assert torch.allclose(out, raw * torch.tensor([5.0, 100.0]) + torch.tensor([5.0, 200.0]), atol=1e-3)
+    assert {id(p) for p in critic.parameters()} == {id(p) for p in net.parameters()}
+    assert "module.1.value_norm.mean" in critic.state_dict()  # the statistics travel with the checkpointed critic
+
+
+def test_value_targets_are_normalised_for_the_loss_only():
+    hook = ValueTargetNormalization(make_value_norm("running", 1))
+    batch = TensorDict({"value_target": torch.tensor([[0.0], [4.0]]), "state_value": torch.tensor([[2.0], [2.0]])}, [2])
+    minibatches = PPOMinibatches(
+        lambda td: td, num_minibatches=1, keys=["value_target", "state_value"], post_estimate=hook
+    )
+    minibatches.pre_epoch(batch)
+    served = minibatches.next_minibatch(batch)
+    assert sorted(served["value_target"].squeeze(-1).tolist()) == pytest.approx([-1.0, 1.0], abs=1e-4)
+    assert batch["value_target"].squeeze(-1).tolist() == [0.0, 4.0]  # the collected batch keeps reward units
+    minibatches.pre_epoch(batch)  # second epoch of the same batch: the statistics do not absorb it again
+    assert hook.value_norm.count.item() == 2
+
+
+def test_minibatches_gather_only_the_keys_the_loss_reads():
+    batch = TensorDict({"a": torch.arange(8.0), "b": torch.zeros(8), "next": {"c": torch.ones(8)}}, [8])
+    minibatches = PPOMinibatches(lambda td: td, num_minibatches=2, seed=0, keys=["a"])
+    minibatches.pre_epoch(batch)
+    served = [minibatches.next_minibatch(batch) for _ in range(2)]
+    assert all(set(mb.keys()) == {"a"} for mb in served)
+    assert sorted(torch.cat([mb["a"] for mb in served]).tolist()) == list(range(8))
+
+
+def test_gae_bootstraps_on_truncation_but_not_on_termination():
+    # one step per env, V = 10 everywhere, reward 1: A = r + gamma V(s') (1 - terminated) - V(s)
+    critic = TensorDictModule(
+        lambda obs: torch.full((*obs.shape[:-1], 1), 10.0), in_keys=["observation"], out_keys=["state_value"]
+    )
+    gae = WeightedMultiGAE(["total"], gamma=0.9, lmbda=0.95, value_network=critic)
+    ones = torch.ones(2, 1, 1, dtype=torch.bool)
+    batch = TensorDict(
+        {
+            "observation": torch.zeros(2, 1, 3),
+            "next": {
+                "observation": torch.zeros(2, 1, 3),
+                "reward": {"total": torch.ones(2, 1, 1)},
+                "done": ones,
+                "truncated": torch.tensor([[[True]], [[False]]]),
+                "terminated": torch.tensor([[[False]], [[True]]]),
+            },
+        },
+        [2, 1],
+    )
+    advantage = gae(batch)["advantage"].reshape(-1).tolist()
+    assert advantage == pytest.approx([1.0 + 0.9 * 10.0 - 10.0, 1.0 - 10.0])
