@@ -26,14 +26,16 @@ cassie, none for rsl_rl's adaptive rate). Budget checks: ours at any instant (th
 sb3 and rsl_rl at every environment step, torchrl after every collected batch (it may overrun by one
 batch's collection). The evaluated policy is the one after the last completed update, and ``frames``
 counts the frames it was trained on. torch runs ``--torch-threads`` (default 1, ours' default) intra-op
-threads in every peer: at two threads the single-env peers' small minibatches ran about 20 times
-slower on this loaded 2-core machine. Every final policy is evaluated the same way, as
+threads in every peer: at two threads the torchrl peer's minibatch steps ran ~20 times slower (and its
+collection ~4 times) on this loaded 2-core machine. Every final policy is evaluated the same way, as
 ``python -m torchrl_ahrs.evaluate`` does: our task's env (for ant_v5 EnvPool's Ant-v5, which steps like
 gymnasium's Ant-v5: ``tests/test_envpool.py``), 10 environments seeded 12345, each one's first
 episode, the mean action; the return is the native total reward (Cassie also reports episode length
 and the velocity-tracking error). Training curves record, once per collected batch, the wall time,
 frames and the mean return of the episodes that ended in it (sampled actions); plots and the
-time-to-threshold columns use their episode-weighted mean over the last ``--window-frames`` frames.
+time-to-threshold columns use their episode-weighted mean over the last ``--window-frames`` frames
+(default thresholds: ant_v5 1 000 and 2 000; cassie 10 and 20 of a 1 000-step episode's native reward,
+whose two tracking terms give at most 20 each).
 
 Outputs in ``--out``: ``curves.csv`` (peer, seed, wall_s, frames, return, episodes, smoothed), ``summary.csv``
 (one row per run: evaluation, frames, wall, stop reason, machine load from ``os.getloadavg()`` at its

@@ -91,7 +91,8 @@ def test_learning_runs_ours_and_sb3_end_to_end_and_writes_a_table_that_parses(le
     # one 2 048-frame iteration per peer (frame cap), 30 s budget each; sb3 is skipped when not installed
     command = [sys.executable, str(BENCHMARKS / "learning.py"), "--task", "ant_v5", "--minutes", "0.5", "--seeds", "1"]
     command += ["--peers", "ours", "sb3", "--frames", "2048", "--out", str(tmp_path)]
-    subprocess.run(command, check=True, capture_output=True, timeout=300)
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
     for name in ("curves.csv", "summary.csv", "table.md", "return_vs_time.png", "return_vs_frames.png"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert (tmp_path / "return_vs_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
