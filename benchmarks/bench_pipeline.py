@@ -8,7 +8,7 @@ the same thread count:
   behind our batched env, reward components, K-head critic, WeightedMultiGAE, TorchRL Trainer + hooks,
   CSV + TensorBoard logging), exactly as ``python -m torchrl_ahrs.train`` runs it.
 - ``reference``: the pipeline TorchRL's ``sota-implementations/ppo`` builds for MuJoCo, written here
-  from its description: gymnasium's ``Ant-v5`` through ``GymEnv`` in a ``ParallelEnv`` holding the
+  from its description (``reference_ppo.py``, shared with ``learning.py``): gymnasium's ``Ant-v5`` through ``GymEnv`` in a ``ParallelEnv`` holding the
   same N environments, VecNorm + ClipTransform + RewardSum + StepCounter + DoubleToFloat, a
   ``Collector``, ``GAE``, ``ClipPPOLoss``, a ``TensorDictReplayBuffer`` with
   ``SamplerWithoutReplacement``, Adam with linear learning-rate annealing and gradient clipping.
@@ -33,7 +33,6 @@ Run: ``python benchmarks/bench_pipeline.py --frames 32768 --num-envs 64 --repeat
 from __future__ import annotations
 
 import argparse
-import functools
 import os
 import statistics
 import tempfile
@@ -42,25 +41,7 @@ from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_module
-from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
-from torch import nn
-from torchrl.collectors import Collector
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
-from torchrl.envs import (
-    ClipTransform,
-    DoubleToFloat,
-    ParallelEnv,
-    RewardSum,
-    SerialEnv,
-    StepCounter,
-    TransformedEnv,
-    VecNorm,
-)
-from torchrl.envs.libs.gym import GymEnv
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
-from torchrl.objectives import ClipPPOLoss
-from torchrl.objectives.value import GAE
+from reference_ppo import ReferenceConfig, ReferencePPO
 
 
 def frames_per_second(batch_times: list[float], frames_per_batch: int, warmup: int) -> float:
@@ -179,101 +160,33 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
 # --- TorchRL reference ---------------------------------------------------------------------------
 
 
-def make_gym_ant() -> GymEnv:
-    return GymEnv("Ant-v5")
-
-
-def make_reference_env(num_envs: int, workers: int, seed: int) -> TransformedEnv:
-    """``ParallelEnv`` of gymnasium Ant-v5 with the sota PPO transforms; batch size [N] or [W, N/W]."""
-    if workers >= num_envs:
-        base = ParallelEnv(num_envs, make_gym_ant)
-    else:
-        if num_envs % workers:
-            raise ValueError(f"--num-envs {num_envs} must be a multiple of --ref-workers {workers}")
-        base = ParallelEnv(workers, functools.partial(SerialEnv, num_envs // workers, make_gym_ant))
-    env = TransformedEnv(base)
-    env.append_transform(VecNorm(in_keys=["observation"], decay=0.99999, eps=1e-2))
-    env.append_transform(ClipTransform(in_keys=["observation"], low=-10, high=10))
-    env.append_transform(RewardSum())
-    env.append_transform(StepCounter())
-    env.append_transform(DoubleToFloat(in_keys=["observation"]))
-    env.set_seed(seed)
-    return env
-
-
-def make_reference_models(env: TransformedEnv, hidden: list[int]) -> tuple[ProbabilisticActor, ValueOperator]:
-    """TanhNormal actor with a state-independent scale and a one-output critic, both tanh MLPs."""
-    obs_dim = env.observation_spec["observation"].shape[-1]
-    action_spec = env.full_action_spec_unbatched
-    action_dim = env.action_spec_unbatched.shape[-1]
-    loc_net = MLP(in_features=obs_dim, out_features=action_dim, num_cells=hidden, activation_class=nn.Tanh)
-    actor = ProbabilisticActor(
-        TensorDictModule(
-            nn.Sequential(loc_net, AddStateIndependentNormalScale(action_dim, scale_lb=1e-8)),
-            in_keys=["observation"],
-            out_keys=["loc", "scale"],
-        ),
-        in_keys=["loc", "scale"],
-        spec=action_spec,
-        distribution_class=TanhNormal,
-        distribution_kwargs={
-            "low": env.action_spec_unbatched.space.low,
-            "high": env.action_spec_unbatched.space.high,
-            "tanh_loc": False,
-        },
-        return_log_prob=True,
-    )
-    value_net = MLP(in_features=obs_dim, out_features=1, num_cells=hidden, activation_class=nn.Tanh)
-    return actor, ValueOperator(value_net, in_keys=["observation"])
-
-
 def run_reference(args: argparse.Namespace, total_frames: int) -> tuple[float, float]:
-    """(frames/s, CPU ms/frame, worker processes included) of TorchRL's reference PPO pipeline on gymnasium Ant-v5 after ``args.warmup`` batches."""
-    torch.manual_seed(args.seed)
+    """(frames/s, CPU ms/frame, worker processes included) of TorchRL's reference PPO pipeline
+    (``reference_ppo.py``) on gymnasium Ant-v5 at our batch geometry, after ``args.warmup`` batches.
+
+    The reference's structure with this benchmark's settings: N envs in a ``ParallelEnv``, our widths,
+    epochs and minibatches; entropy off, critic coefficient 0.5, gradient norm 1.0, PyTorch's default
+    initialisation (the objective of our default config).
+    """
     frames_per_batch = args.num_envs * args.rollout_steps
-    env = make_reference_env(args.num_envs, args.ref_workers, args.seed)
-    actor, critic = make_reference_models(env, args.hidden)
-    collector = Collector(
-        env, actor, frames_per_batch=frames_per_batch, total_frames=total_frames, max_frames_per_traj=-1
-    )
-    buffer = TensorDictReplayBuffer(
-        storage=LazyTensorStorage(frames_per_batch),
-        sampler=SamplerWithoutReplacement(),
-        batch_size=frames_per_batch // args.minibatches,
-    )
-    advantage = GAE(gamma=0.99, lmbda=0.95, value_network=critic, average_gae=False)
-    # entropy off, critic 0.5, l2, normalised advantage: the same objective as our default config
-    loss_module = ClipPPOLoss(
-        actor,
-        critic,
-        clip_epsilon=0.2,
-        entropy_bonus=False,
+    config = ReferenceConfig(
+        num_envs=args.num_envs,
+        workers=args.ref_workers,
+        frames_per_batch=frames_per_batch,
+        total_frames=total_frames,
+        mini_batch_size=frames_per_batch // args.minibatches,
+        epochs=args.epochs,
+        max_grad_norm=1.0,
         critic_coeff=0.5,
-        loss_critic_type="l2",
-        normalize_advantage=True,
+        entropy_bonus=False,
+        hidden=list(args.hidden),
+        orthogonal_init=False,
     )
-    optimizer = torch.optim.Adam(loss_module.parameters(), lr=3e-4, eps=1e-5)
+    ppo = ReferencePPO(config, args.seed)
     stamps = []
     cpu = CpuClock()
-    collected = 0
-    for data in collector:
+    for _ in ppo.batches():
         stamps.append((time.perf_counter(), cpu()))
-        collected += data.numel()
-        for _ in range(args.epochs):
-            with torch.no_grad():
-                data = advantage(data)
-            buffer.extend(data.reshape(-1))
-            for minibatch in buffer:
-                losses = loss_module(minibatch)
-                total = losses["loss_objective"] + losses["loss_critic"]
-                optimizer.zero_grad(set_to_none=True)
-                total.backward()
-                nn.utils.clip_grad_norm_(loss_module.parameters(), 1.0)
-                optimizer.step()
-        for group in optimizer.param_groups:
-            group["lr"] = 3e-4 * max(0.0, 1.0 - collected / total_frames)  # lr_i = lr_0 (1 - f_i / F)
-        collector.update_policy_weights_()
-    collector.shutdown()
     return rates(stamps[:-1], frames_per_batch, args.warmup)
 
 
