@@ -18,6 +18,7 @@ from torchrl_ahrs.app.auxiliary import TransformFactory, auxiliary_transform
 from torchrl_ahrs.app.config import resolve_components
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
+from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
@@ -45,8 +46,10 @@ def env_factory(cfg: DictConfig, check_aux: bool = True) -> EnvFactory:
     """The run's :class:`EnvFactory`; with ``check_aux`` the auxiliary reward file (when the method uses
     one) passes the sandbox on real transitions first."""
     aux = auxiliary_transform(cfg, check=check_aux)
+    # an unsquashed Gaussian samples outside the bounds: the env gets the clipped action, the rollout the sample
+    clip = ClipActionToSpec if cfg.model.get("distribution", "tanh_normal") == "normal" else None
     task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
-    return EnvFactory(task, resolve_components(cfg), (aux,) if aux else ())
+    return EnvFactory(task, resolve_components(cfg), tuple(factory for factory in (clip, aux) if factory))
 
 
 @dataclass
@@ -80,7 +83,15 @@ def build_networks(cfg: DictConfig, make_envs: EnvFactory, with_critic: bool = T
     model = cfg.model
     actor_norm = RunningNorm(obs_dim)
     critic_norm = actor_norm if critic_key == "observation" else RunningNorm(critic_obs_dim)
-    actor = build_actor(actor_norm, obs_dim, action_spec, model.hidden_sizes, model.activation, model.init_log_std)
+    actor = build_actor(
+        actor_norm,
+        obs_dim,
+        action_spec,
+        model.hidden_sizes,
+        model.activation,
+        model.init_log_std,
+        distribution=model.get("distribution", "tanh_normal"),
+    )
     critic = None
     if with_critic:
         critic = build_critic(

@@ -14,6 +14,7 @@ from torchrl_ahrs.app.redaction import is_secret_key
 from torchrl_ahrs.app.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
+from torchrl_ahrs.training.models import DISTRIBUTIONS
 
 __all__ = [
     "ConfigError",
@@ -109,6 +110,10 @@ def validate_config(cfg: DictConfig) -> None:
         )
     if not 0 <= cfg.ppo.gamma <= 1 or not 0 <= cfg.ppo.lmbda <= 1:
         raise ConfigError(f"ppo.gamma and ppo.lmbda must lie in [0, 1], got {cfg.ppo.gamma}, {cfg.ppo.lmbda}")
+    if cfg.model.get("distribution", "tanh_normal") not in DISTRIBUTIONS:
+        raise ConfigError(
+            f"model.distribution must be one of {', '.join(DISTRIBUTIONS)}, got {cfg.model.distribution!r}"
+        )
     ppo = cfg.ppo
     if ppo.get("value_norm") not in (None, False, True, "running", "popart"):
         raise ConfigError(f"ppo.value_norm must be running, popart or null, got {ppo.get('value_norm')!r}")
