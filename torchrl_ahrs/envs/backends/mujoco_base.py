@@ -46,9 +46,8 @@ Hooks (override in the subclass):
 * ``init_buffers()`` — allocate per-env tensors [N, ...]; called once in ``__init__`` before the first reset
   (set task attributes the hooks need *before* calling ``super().__init__``).
 * ``on_reset(env_ids)`` — clear per-env buffers (previous potential, last action); state is fresh.
-* ``apply_action(action [N, A] float32) -> ctrl [N, nu]`` float64, numpy or a torch tensor on the action's
-  device (a torch tensor keeps an accelerator backend's step on the device, see the MJX backend) —
-  default: clip to [-1, 1] (ctrlrange scaling is the model's job, use ``gear``). Called once per control step.
+* ``apply_action(action [N, A] float32) -> ctrl [N, nu]`` float64, numpy or torch on the action's device (MJX
+  then stays on its device) — default: clip to [-1, 1] (ctrlrange scaling: ``gear``). Once per control step.
 * ``substep_control(env_slice, qpos [n, nq], qvel [n, nv]) -> ctrl numpy [n, nu]`` — set
   ``per_substep_control = True`` to recompute ctrl before every physics substep (PD torques). Runs in the
   worker threads on disjoint slices: read ``self.ctrl[env_slice]`` (the targets), write nothing shared.
@@ -275,8 +274,7 @@ class BatchedMujocoEnv(EnvBase):
         self._gather(env_slice)
 
     def _write_ctrl(self, ctrl: np.ndarray | torch.Tensor) -> None:
-        """Stores ``apply_action``'s ctrl [N, nu] where the physics reads it (numpy, for the worker threads)."""
-        self.ctrl[:] = ctrl  # a CPU torch tensor converts without a copy of its own (numpy's __array__)
+        self.ctrl[:] = ctrl  # apply_action's ctrl, numpy for the worker threads (a CPU tensor converts in place)
 
     def _physics_step(self) -> None:
         """Advances every env by ``decimation`` substeps on the pool plus the main thread."""
@@ -303,12 +301,8 @@ class BatchedMujocoEnv(EnvBase):
         )
         self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.action_dim), dtype=torch.float32)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
-        self.done_spec = Composite(
-            done=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            shape=(n,),
-        )
+        flags = ("done", "terminated", "truncated")
+        self.done_spec = Composite({k: Categorical(2, shape=(n, 1), dtype=torch.bool) for k in flags}, shape=(n,))
 
     def _observation_dim(self) -> int:
         return self.observation().shape[-1]
@@ -354,14 +348,12 @@ class BatchedMujocoEnv(EnvBase):
             env_ids = reset_mask.reshape(self.num_envs).cpu().numpy().nonzero()[0]
         if len(env_ids):
             self.reset_envs(env_ids)
-        device = self.qpos.device  # where the hooks' state lives (the CPU here, the env's device on MJX)
-        zeros = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=device)
+        zeros = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.qpos.device)  # the hooks' device
+        zero_terms = {name: torch.zeros(self.num_envs, device=self.qpos.device) for name in self.reward_term_names}
         out = TensorDict(
             {
                 "observation": self.observation().to(torch.float32),
-                "info": self._info(
-                    {name: torch.zeros(self.num_envs, device=device) for name in self.reward_term_names}
-                ),
+                "info": self._info(zero_terms),
                 "done": zeros.clone(),
                 "terminated": zeros.clone(),
                 "truncated": zeros.clone(),
