@@ -12,6 +12,7 @@ from conftest import make_cfg
 from test_resume import differences
 
 from torchrl_ahrs.app.build import RunDevices, build_networks, env_factory, resolve_devices
+from torchrl_ahrs.app.config import ConfigError
 from torchrl_ahrs.app.iteration import train
 from torchrl_ahrs.app.run_dir import RunDirectory
 
@@ -70,9 +71,16 @@ def test_mjx_environments_follow_the_learner(monkeypatch):
     monkeypatch.setattr(registry, "simulation_device", lambda task_cfg: torch.device("cuda:0"))
     monkeypatch.setattr("torchrl_ahrs.app.build.simulation_device", registry.simulation_device)
     cuda = torch.device("cuda:0")
-    assert resolve_devices(make_cfg("task=quadcopter", "task.backend=mjx")) == RunDevices(cuda, cuda)
+    mjx = make_cfg("task=quadcopter", "task.backend=mjx")
     cfg = make_cfg("task=quadcopter", "task.backend=mjx", "trainer.device=cpu")
     assert resolve_devices(cfg) == RunDevices(torch.device("cpu"), torch.device("cpu"))
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # JAX on a GPU beside a CPU build of torch
+    with pytest.raises(ConfigError, match="torch sees no CUDA device: install torch with CUDA, or set trainer.device"):
+        resolve_devices(mjx)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_devices(mjx) == RunDevices(cuda, cuda)
+    with pytest.raises(ConfigError, match="needs trainer.collector=sync"):
+        resolve_devices(make_cfg("task=quadcopter", "task.backend=mjx", "trainer.collector=multi"))
 
 
 @pytest.mark.parametrize("task", ["point_reach", "quadcopter"])

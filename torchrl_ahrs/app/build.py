@@ -60,9 +60,23 @@ class RunDevices:
 
 def resolve_devices(cfg: DictConfig) -> RunDevices:
     """``trainer.device`` (null: the simulation's device, :func:`~torchrl_ahrs.envs.registry.simulation_device`)
-    and the environments' device (:func:`~torchrl_ahrs.envs.registry.env_device`)."""
+    and the environments' device (:func:`~torchrl_ahrs.envs.registry.env_device`).
+
+    Raises:
+        ConfigError: null resolves to a GPU (MJX on JAX's GPU) that torch cannot use here.
+    """
     configured = cfg.trainer.get("device")
-    learner = torch.device(configured) if configured is not None else simulation_device(cfg.task)
+    if configured is not None:  # validate_config has checked it
+        learner = torch.device(configured)
+    else:
+        learner = simulation_device(cfg.task)
+        if learner.type == "cuda" and not torch.cuda.is_available():  # e.g. jax[cuda12] beside a CPU build of torch
+            raise ConfigError(
+                f"JAX steps on the GPU and trainer.device=null follows it ({learner}), but torch sees no CUDA "
+                "device: install torch with CUDA, or set trainer.device=cpu (per-step copies between the two)"
+            )
+        if learner.type == "cuda" and cfg.trainer.collector != "sync":
+            raise ConfigError(f"trainer.device=null is {learner} here (JAX's GPU), which needs trainer.collector=sync")
     return RunDevices(learner, env_device(cfg.task, learner))
 
 
