@@ -6,6 +6,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.app.auxiliary import aux_leaves, auxiliary_components
@@ -18,6 +19,7 @@ from torchrl_ahrs.training.models import DISTRIBUTIONS
 
 __all__ = [
     "ConfigError",
+    "check_device",
     "load_saved_config",
     "num_minibatches",
     "refuse_renamed",
@@ -40,7 +42,7 @@ RENAMED_KEYS = {
     "trainer.rollout_steps": "trainer.frames_per_batch (= num_envs x steps per environment)",
     "trainer.num_minibatches": "trainer.mini_batch_size (= frames_per_batch / minibatches)",
     "ppo.normalize_components": "ppo.component_scale (raw | standardize | value_norm)",
-    "device": "nothing: networks and environments run on the CPU",
+    "device": "trainer.device (null = the simulation's device)",
 }
 
 
@@ -94,6 +96,7 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(f"trainer.lr must be positive, got {trainer.lr}")
     if trainer.collector not in ("sync", "multi", "async"):
         raise ConfigError(f"trainer.collector must be 'sync', 'multi' or 'async', got {trainer.collector!r}")
+    check_device(trainer.get("device"), trainer.collector)
     if trainer.collector != "sync" and trainer.num_envs % trainer.workers:
         raise ConfigError(
             f"trainer.num_envs ({trainer.num_envs}) must be divisible by trainer.workers ({trainer.workers})"
@@ -134,6 +137,38 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"method.initial_weights has {len(weights)} values but there are {len(components)} components {components}"
         )
+
+
+def check_device(device: Any, collector: str = "sync") -> None:
+    """Raises :class:`ConfigError` unless ``trainer.device`` is null, ``cpu`` or a CUDA device torch can see
+    (with the in-process ``sync`` collector: worker processes keep their environments and policy on the CPU).
+
+    Example:
+        >>> check_device("cpu"); check_device(None)
+        >>> check_device("gpu")
+        Traceback (most recent call last):
+        ...
+        torchrl_ahrs.app.errors.ConfigError: trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'
+    """
+    if device is None:
+        return
+    try:
+        parsed = torch.device(str(device))
+    except (RuntimeError, ValueError):
+        parsed = None
+    if parsed is None or parsed.type not in ("cpu", "cuda"):
+        raise ConfigError(f"trainer.device must be null, cpu, cuda or cuda:<index>, got {device!r}")
+    if parsed.type == "cpu":
+        return
+    if not torch.cuda.is_available():
+        raise ConfigError(
+            f"trainer.device={device} but torch sees no CUDA device (torch.cuda.is_available() is False): "
+            "use trainer.device=cpu, or null for the simulation's device"
+        )
+    if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+        raise ConfigError(f"trainer.device={device} but torch sees {torch.cuda.device_count()} CUDA device(s)")
+    if collector != "sync":
+        raise ConfigError(f"trainer.device={device} needs trainer.collector=sync (got {collector!r})")
 
 
 def _dotted_keys(container: Any, prefix: str = "") -> list[str]:
