@@ -7,6 +7,10 @@ For each N and backend (``task.backend=cpu`` / ``mjx``) on whatever JAX device i
 * training frames/s (``--train-batches`` > 0): ``torchrl_ahrs.app.iteration.train`` (PPO, the task's reward
   components) with frames_per_batch = N × ``rollout_steps``, timed over the batches after the first.
 
+``--device`` is ``trainer.device`` (default: the simulation's, so MJX on a GPU keeps env and learner there):
+the MJX env is built on it, the CPU backend's outputs are moved to it each step, and training runs its learner
+on it (a CPU backend then hands each step's data over through the collector).
+
 Run (CPU, brief): ``python benchmarks/bench_mjx.py --task cassie --num-envs 64 1024 4096 --steps 5``
 GPU: see benchmarks/RESULTS.md (``JAX_PLATFORMS=cuda``, ``--device cuda``).
 """
@@ -24,17 +28,16 @@ from bench_env_throughput import time_torchrl_env
 from bench_pipeline import TimedCollector, rates
 from hydra import compose, initialize_config_module
 
-from torchrl_ahrs.envs.registry import load_task_config, make_env
+from torchrl_ahrs.envs.registry import load_task_config, make_env, simulation_device
 
 
 def env_rate(
-    task: str, backend: str, num_envs: int, steps: int, threads: int, device: str
+    task: str, backend: str, num_envs: int, steps: int, threads: int, device: str | None
 ) -> tuple[float, float, float]:
     """(env steps/s, CPU µs per env step, seconds to build the env and take its first step)."""
     start = time.perf_counter()
-    env = make_env(
-        load_task_config(task, [f"task.backend={backend}", f"task.num_threads={threads}"]), num_envs, 0, device
-    )
+    task_cfg = load_task_config(task, [f"task.backend={backend}", f"task.num_threads={threads}"])
+    env = make_env(task_cfg, num_envs, 0, device or simulation_device(task_cfg))
     env.rand_step(env.reset())  # builds, resets and compiles (MJX) before the clock starts
     first = time.perf_counter() - start
     rate, cpu_us = time_torchrl_env(env, steps, warmup=2)
@@ -42,11 +45,9 @@ def env_rate(
     return rate, cpu_us, first
 
 
-def train_rate(task: str, backend: str, num_envs: int, rollout_steps: int, batches: int) -> float:
-    """Training frames/s of the whole PPO iteration (collect + GAE + update), batches after the first.
-
-    The application layer keeps the networks and the PPO update on the CPU (it has no ``device`` key yet,
-    see docs/mjx.md), so with an MJX env on a GPU this measures the env on the GPU feeding a CPU learner."""
+def train_rate(task: str, backend: str, num_envs: int, rollout_steps: int, batches: int, device: str | None) -> float:
+    """Training frames/s of the whole PPO iteration (collect + GAE + update), batches after the first, with
+    ``trainer.device=device`` (None: the simulation's device)."""
     import torchrl_ahrs.app.iteration as training
 
     timed: list[TimedCollector] = []
@@ -66,6 +67,7 @@ def train_rate(task: str, backend: str, num_envs: int, rollout_steps: int, batch
         f"trainer.mini_batch_size={frames_per_batch // 4}",
         "trainer.progress_bar=false",
         "checkpoint.interval=0",
+        *([f"trainer.device={device}"] if device else []),
     ]
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
@@ -87,7 +89,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="CPU backend stepping threads")
     parser.add_argument("--train-batches", type=int, default=0, help="timed training batches (0: env steps only)")
     parser.add_argument("--rollout-steps", type=int, default=8, help="T: frames_per_batch = N x T when training")
-    parser.add_argument("--device", default="cpu", help="torch device of the env outputs (env steps only)")
+    parser.add_argument("--device", default=None, help="trainer.device (default: the simulation's device)")
     args = parser.parse_args()
     import jax
 
@@ -103,7 +105,8 @@ def main() -> None:
             rate, cpu_us, first = env_rate(args.task, backend, n, args.steps, args.threads, args.device)
             trained = "—"
             if args.train_batches:
-                trained = f"{train_rate(args.task, backend, n, args.rollout_steps, args.train_batches):.0f}"
+                frames = train_rate(args.task, backend, n, args.rollout_steps, args.train_batches, args.device)
+                trained = f"{frames:.0f}"
             print(f"| {n} | {backend} | {rate:.0f} | {cpu_us:.1f} | {first:.1f} | {trained} |", flush=True)
     load = os.getloadavg()
     print(f"load at the end: {load[0]:.2f},{load[1]:.2f},{load[2]:.2f}")

@@ -117,3 +117,85 @@ def test_partial_reset_touches_only_masked_envs():
     assert not torch.equal(after[0], before[0])
     torch.testing.assert_close(obs_mjx[0], obs_cpu[0], atol=1e-6, rtol=0)  # the same reset draw as the CPU backend
     assert mjx.base_env.episode_steps.tolist() == [0, 1]
+
+
+# ---------------------------------------------------------------- devices (issue 16, item 5)
+@needs_jax
+@pytest.mark.parametrize("task", ["quadcopter", "ant", "cassie"])
+def test_a_control_step_keeps_every_tensor_on_the_env_device(task):
+    """The whole ``_step`` (the task's hooks, the base's bookkeeping, the output tensordict) on a device
+    without host memory. torch's ``meta`` device holds shapes and no data, so on it every host copy
+    (``.cpu()``, ``.numpy()``, ``.item()``, ``bool(tensor)``), every data-dependent sync (``nonzero``) and
+    every tensor left on the CPU raises — what would cost a copy or a sync per step on a GPU. The physics
+    runs for real (CPU-JAX); only ctrl's export to JAX is replaced by zeros of its shape, because a meta
+    tensor has no memory for DLPack to share. (TorchRL's specs cannot live on ``meta``, so the env's device
+    is switched without them: what ``env.to(device)`` does to the hooks' state.)"""
+    import jax.numpy as jnp
+
+    env = make_env(load_task_config(task, ["task.backend=mjx"]), 2, seed=3)
+    env.reset()
+    base = env.base_env
+    base.__dict__["_device"] = torch.device("meta")
+    base._move_tensors()
+    base._publish(base.data)
+    exported = []
+
+    def to_jax(tensor):
+        exported.append((tensor.device.type, tuple(tensor.shape)))
+        return jnp.zeros(tuple(tensor.shape), jnp.float32)
+
+    base._to_jax = to_jax
+    time_before = float(base.data.time[0])
+    out = base._step(TensorDict({"action": torch.zeros(2, base.action_dim, device="meta")}, [2]))
+    assert {leaf.device.type for leaf in out.values(True, True)} == {"meta"}
+    assert exported == [("meta", (2, base.model.nu))]  # ctrl crossed to JAX once, from the env's device
+    assert float(base.data.time[0]) > time_before  # and the physics stepped
+
+
+@needs_jax
+def test_a_control_step_sends_nothing_from_the_host_to_jax():
+    """JAX's transfer guard refuses every host-to-device transfer (numpy arrays and Python numbers
+    entering JAX) during a step; ctrl reaches JAX through DLPack, which the guard allows. Negative control:
+    the backend's former export (``jnp.asarray`` of a numpy ctrl) trips it. On a CPU-only machine the guard
+    cannot see device-to-host reads; the meta-device test above covers the torch side of those."""
+    import jax
+    import jax.numpy as jnp
+
+    env = make_env(load_task_config("quadcopter", ["task.backend=mjx"]), 2, seed=3)
+    td = env.reset().set("action", torch.zeros(2, 4))
+    with jax.transfer_guard("disallow_explicit"):
+        env.step(td)
+    base = env.base_env
+    base._to_jax = lambda tensor: jnp.asarray(tensor.numpy(), jnp.float32)  # through a host array
+    with pytest.raises(Exception, match="Disallowed host-to-device transfer"), jax.transfer_guard("disallow_explicit"):
+        env.step(td)
+
+
+@needs_jax
+def test_a_loaded_twin_continues_an_mjx_episode_exactly():
+    """The MJX env's snapshot (every leaf of the batched mjx.Data, counters, generator, task state) is a
+    complete one: a twin built with another seed and loaded continues bit for bit."""
+    cfg = load_task_config("quadcopter", ["task.backend=mjx"])
+    env = make_env(cfg, 2, seed=3)
+    actions = torch.rand(6, 2, 4, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    td = env.reset()
+    for action in actions[:3]:
+        _, td = env.step_and_maybe_reset(td.set("action", action))
+    snapshot, carried = env.state_dict(), td.clone()
+    twin = make_env(cfg, 2, seed=99)
+    twin.reset()
+    twin.load_state_dict(snapshot)
+    for action in actions[3:]:
+        out, td = env.step_and_maybe_reset(td.set("action", action))
+        out_twin, carried = twin.step_and_maybe_reset(carried.set("action", action))
+        assert (out["next"].exclude("episode_reward") == out_twin["next"].exclude("episode_reward")).all()
+
+
+def test_jax_devices_map_to_torch_devices():
+    from types import SimpleNamespace
+
+    assert mjx_backend.torch_device_of(SimpleNamespace(platform="cpu", id=0)) == torch.device("cpu")
+    gpu = SimpleNamespace(platform="gpu", id=3, local_hardware_id=1)  # torch counts CUDA ordinals, as local ids
+    assert mjx_backend.torch_device_of(gpu) == torch.device("cuda", 1)
+    with pytest.raises(ValueError, match="torch has no device"):
+        mjx_backend.torch_device_of(SimpleNamespace(platform="tpu", id=0))

@@ -67,6 +67,8 @@ def test_ppo_is_the_same_loop_with_one_head_on_total(tmp_path):
         ("ppo.value_norm=batch", "ppo.value_norm must be running, popart or null"),
         ("ppo.kl_target=0", "ppo.kl_target must be a positive number or null"),
         ("ppo.clip_value=-1", "ppo.clip_value must be a positive number or null"),
+        ("trainer.device=gpu", "trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'"),
+        ("trainer.device=mps", "trainer.device must be null, cpu, cuda or cuda:<index>, got 'mps'"),
     ],
 )
 def test_impossible_values_name_the_field(override, message):
@@ -81,6 +83,12 @@ def test_impossible_values_name_the_field(override, message):
         ("task=not_a_robot", "Could not find 'task/not_a_robot'"),
         ("method=not_a_method", "Could not find 'method/not_a_method'"),
         ("trainer.num_envs=0", "error: trainer.num_envs must be a positive integer, got 0"),
+        ("device=cuda", "error: device was renamed: use trainer.device (null = the simulation's device)"),
+        pytest.param(
+            "trainer.device=cuda",  # point_reach is a CPU backend; the learner would go to the GPU
+            "error: trainer.device=cuda but torch sees no CUDA device (torch.cuda.is_available() is False)",
+            marks=pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA device"),
+        ),
     ],
 )
 def test_command_line_errors_are_one_clear_line(tmp_path, override, expected):
@@ -93,6 +101,9 @@ def test_command_line_errors_are_one_clear_line(tmp_path, override, expected):
     assert result.returncode != 0
     assert expected in result.stderr
     assert "Traceback" not in result.stderr
+    if expected.startswith("error: "):  # ours: one line says it all
+        error_lines = [line for line in result.stderr.splitlines() if line.startswith("error: ")]
+        assert len(error_lines) == 1 and expected in error_lines[0]
 
 
 FIXED_FOUR = '''import torch

@@ -6,6 +6,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.app.auxiliary import aux_leaves, auxiliary_components
@@ -14,9 +15,11 @@ from torchrl_ahrs.app.redaction import is_secret_key
 from torchrl_ahrs.app.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
+from torchrl_ahrs.training.models import DISTRIBUTIONS
 
 __all__ = [
     "ConfigError",
+    "check_device",
     "load_saved_config",
     "num_minibatches",
     "refuse_renamed",
@@ -39,7 +42,7 @@ RENAMED_KEYS = {
     "trainer.rollout_steps": "trainer.frames_per_batch (= num_envs x steps per environment)",
     "trainer.num_minibatches": "trainer.mini_batch_size (= frames_per_batch / minibatches)",
     "ppo.normalize_components": "ppo.component_scale (raw | standardize | value_norm)",
-    "device": "nothing: networks and environments run on the CPU",
+    "device": "trainer.device (null = the simulation's device)",
 }
 
 
@@ -93,6 +96,7 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(f"trainer.lr must be positive, got {trainer.lr}")
     if trainer.collector not in ("sync", "multi", "async"):
         raise ConfigError(f"trainer.collector must be 'sync', 'multi' or 'async', got {trainer.collector!r}")
+    check_device(trainer.get("device"), trainer.collector)
     if trainer.collector != "sync" and trainer.num_envs % trainer.workers:
         raise ConfigError(
             f"trainer.num_envs ({trainer.num_envs}) must be divisible by trainer.workers ({trainer.workers})"
@@ -109,6 +113,10 @@ def validate_config(cfg: DictConfig) -> None:
         )
     if not 0 <= cfg.ppo.gamma <= 1 or not 0 <= cfg.ppo.lmbda <= 1:
         raise ConfigError(f"ppo.gamma and ppo.lmbda must lie in [0, 1], got {cfg.ppo.gamma}, {cfg.ppo.lmbda}")
+    if cfg.model.get("distribution", "tanh_normal") not in DISTRIBUTIONS:
+        raise ConfigError(
+            f"model.distribution must be one of {', '.join(DISTRIBUTIONS)}, got {cfg.model.distribution!r}"
+        )
     ppo = cfg.ppo
     if ppo.get("value_norm") not in (None, False, True, "running", "popart"):
         raise ConfigError(f"ppo.value_norm must be running, popart or null, got {ppo.get('value_norm')!r}")
@@ -129,6 +137,38 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"method.initial_weights has {len(weights)} values but there are {len(components)} components {components}"
         )
+
+
+def check_device(device: Any, collector: str = "sync") -> None:
+    """Raises :class:`ConfigError` unless ``trainer.device`` is null, ``cpu`` or a CUDA device torch can see
+    (with the in-process ``sync`` collector: worker processes keep their environments and policy on the CPU).
+
+    Example:
+        >>> check_device("cpu"); check_device(None)
+        >>> check_device("gpu")
+        Traceback (most recent call last):
+        ...
+        torchrl_ahrs.app.errors.ConfigError: trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'
+    """
+    if device is None:
+        return
+    try:
+        parsed = torch.device(str(device))
+    except (RuntimeError, ValueError):
+        parsed = None
+    if parsed is None or parsed.type not in ("cpu", "cuda"):
+        raise ConfigError(f"trainer.device must be null, cpu, cuda or cuda:<index>, got {device!r}")
+    if parsed.type == "cpu":
+        return
+    if not torch.cuda.is_available():
+        raise ConfigError(
+            f"trainer.device={device} but torch sees no CUDA device (torch.cuda.is_available() is False): "
+            "use trainer.device=cpu, or null for the simulation's device"
+        )
+    if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+        raise ConfigError(f"trainer.device={device} but torch sees {torch.cuda.device_count()} CUDA device(s)")
+    if collector != "sync":
+        raise ConfigError(f"trainer.device={device} needs trainer.collector=sync (got {collector!r})")
 
 
 def _dotted_keys(container: Any, prefix: str = "") -> list[str]:

@@ -46,11 +46,13 @@ from torchrl_ahrs.app.build import (
     build_estimator_and_loss,
     build_networks,
     env_factory,
+    resolve_devices,
 )
 from torchrl_ahrs.app.checkpoint import CheckpointHook, load_checkpoint, truncate_jsonl, truncate_metrics
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import register_video_log
+from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.hooks import (
     ComponentReturnLog,
@@ -80,15 +82,24 @@ POST_STEPS_ORDER = (
 
 
 class GlobalRNG(TrainerHookBase):
-    """Python's, NumPy's and torch's global generators as one registered piece of state."""
+    """Python's, NumPy's and torch's global generators as one registered piece of state (with the learner's
+    CUDA generator, which samples the policy's actions, when it runs on a GPU)."""
+
+    def __init__(self, device: torch.device | str = "cpu"):
+        self.device = torch.device(device)
 
     def state_dict(self) -> dict[str, Any]:
-        return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+        state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+        if self.device.type == "cuda":
+            state["cuda"] = torch.cuda.get_rng_state(self.device)
+        return state
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         random.setstate(state_dict["python"])
         np.random.set_state(state_dict["numpy"])
         torch.set_rng_state(state_dict["torch"])
+        if "cuda" in state_dict and self.device.type == "cuda":
+            torch.cuda.set_rng_state(state_dict["cuda"], self.device)
 
     def register(self, trainer: Trainer, name: str = "rng") -> None:
         trainer.register_module(name, self)
@@ -98,7 +109,7 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
     """Registers every hook of one iteration on ``trainer``, in the order of the module docstring.
 
     ``parts`` holds the run's pieces by name (``components``, ``estimator``, ``loss``, ``networks``, ``optimizer``,
-    ``scheduler``, ``collector``, ``checkpoint``, ``cfg``, ``run_dir``); optional hooks (critic
+    ``scheduler``, ``collector``, ``checkpoint``, ``cfg``, ``run_dir``, ``device``); optional hooks (critic
     normaliser, LR decay, video) are registered only when the run uses them.
     """
     cfg, networks = parts["cfg"], parts["networks"]
@@ -128,6 +139,7 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
         seed=int(cfg.seed),
         keys=[*loss.in_keys, "advantage", "value_target", "state_value", "loc", "scale"],
         post_estimate=ValueTargetNormalization(value_norm) if value_norm is not None else None,
+        device=parts.get("device", "cpu"),
     ).register(trainer)
     if cfg.ppo.get("kl_target"):  # adaptive KL schedule (training/kl_schedule.py), in place of the linear decay
         AdaptiveKLLR(parts["optimizer"], networks.actor.module[0].module, target=cfg.ppo.kl_target).register(trainer)
@@ -145,7 +157,7 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
     parts["scheduler"].register(trainer, "rule_scheduler")
     register_video_log(trainer, cfg, networks.actor, parts["make_envs"], parts["run_dir"])
     # 7. checkpoint: last, so it saves the state the next iteration starts from
-    GlobalRNG().register(trainer)
+    GlobalRNG(parts.get("device", "cpu")).register(trainer)
     parts["checkpoint"].register(trainer)
     check_order(trainer)
 
@@ -180,11 +192,17 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.trainer.torch_threads)
 
-    make_envs = env_factory(cfg)  # + the sandbox-checked auxiliary reward when the method uses one
+    devices = resolve_devices(cfg)
+    # + the sandbox-checked auxiliary reward when the method uses one
+    make_envs = env_factory(cfg, device=devices.envs)
     components = make_envs.components
     log.info("task %s, method %s, K=%d components %s", cfg.task.name, cfg.method.name, len(components), components)
-    networks = build_networks(cfg, make_envs)
-    estimator, loss = build_estimator_and_loss(cfg, networks, components)
+    log.info("learner on %s, environments on %s", devices.learner, devices.envs)
+    physics = simulation_device(cfg.task) if cfg.task.get("backend", "cpu") == "mjx" else devices.envs
+    if physics != devices.envs:  # e.g. JAX on a GPU with trainer.device=cpu
+        log.warning("MJX steps on %s, its env on %s: every control step copies the state across", physics, devices.envs)
+    networks = build_networks(cfg, make_envs, device=devices.learner)
+    estimator, loss = build_estimator_and_loss(cfg, networks, components, devices.learner)
     # fused: one kernel for all parameters; the per-tensor Python loop cost 1.7 ms per step against 0.27 ms
     # (measured with [64, 64] networks, one thread), as much as the loss forward at small minibatches
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5, fused=True)
@@ -194,7 +212,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         log.info("resuming %s at %d frames", run_dir, done_frames)
         truncate_metrics(run.metrics, done_frames)
         truncate_jsonl(run.decisions, done_frames)
-    collector = build_collector(cfg, networks.actor, make_envs)
+    collector = build_collector(cfg, networks.actor, make_envs, devices.learner)
     logger = build_logger(cfg.logger.backends, run.path, METRICS)
     trainer = Trainer(
         collector=collector,
@@ -222,7 +240,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     parts = dict(
         cfg=cfg, run_dir=run.path, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
         optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, done_frames=done_frames,
-        loss=loss,
+        loss=loss, device=devices.learner,
     )  # fmt: skip
     register_iteration(trainer, parts)
     if resumed:

@@ -130,11 +130,19 @@ class VideoLog(TrainerHookBase):
             return
         training = self.policy.training
         self.policy.eval()
-        frames = record_frames(self.env, self.policy, self.frame_source, self.num_frames)
+        frames = record_frames(self.env, self._policy_on_env_device(), self.frame_source, self.num_frames)
         self.policy.train(training)
         for frame in torch.from_numpy(frames):
             self.recorder(TensorDict({"pixels": frame}, []))
         self.recorder.dump(step=self.iteration)
+
+    def _policy_on_env_device(self):
+        """The policy, called across devices when it lives elsewhere than the rendered env (a CPU simulator
+        with ``trainer.device=cuda``): observation to the policy's device, action back."""
+        device = next(self.policy.parameters()).device
+        if self.env.device is None or device == self.env.device:
+            return self.policy
+        return lambda td: self.policy(td.to(device)).to(self.env.device)
 
     def state_dict(self) -> dict[str, Any]:
         return {"iteration": self.iteration}

@@ -12,6 +12,7 @@ import importlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import torch
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from torchrl_ahrs.envs.common.snapshot import BaseEnvSnapshot
@@ -40,6 +41,27 @@ _BUILDERS: dict[str, str] = {
 # task.backend=mjx: the same tasks stepped by MJX on JAX (the [mjx] extra); task.backend=cpu uses _BUILDERS
 _MJX_BUILDERS = dict.fromkeys(("ant", "cassie", "quadcopter"), "torchrl_ahrs.envs.tasks.mjx_tasks:make_mjx_task")
 BACKENDS = ("cpu", "mjx")
+
+
+# backends whose environments compute on their torch device (the hooks' state follows env.to(device));
+# the others step on the CPU and hand their output to a collector that moves it (policy/storing device)
+DEVICE_RESIDENT_BACKENDS = ("mjx",)
+
+
+def simulation_device(task_cfg: Mapping[str, Any]) -> torch.device:
+    """Where the task's simulation runs, as a torch device: ``cpu`` for the CPU backends; for ``mjx`` the
+    device matching JAX's default one (``cuda:k`` on a GPU). ``trainer.device=null`` resolves to it."""
+    if task_cfg.get("backend", "cpu") != "mjx":
+        return torch.device("cpu")
+    from torchrl_ahrs.envs.backends.mjx import default_torch_device  # imports JAX: only when asked for
+
+    return default_torch_device()
+
+
+def env_device(task_cfg: Mapping[str, Any], device: torch.device) -> torch.device:
+    """The device to build the task's environments on when the learner is on ``device``: ``device`` itself
+    for a device-resident backend (MJX: no copy between simulation and learner), else the CPU."""
+    return device if task_cfg.get("backend", "cpu") in DEVICE_RESIDENT_BACKENDS else torch.device("cpu")
 
 
 def register_task(name: str, builder: TaskBuilder | str) -> None:
@@ -71,7 +93,7 @@ def make_env(
     task_cfg: Mapping[str, Any],
     num_envs: int,
     seed: int = 0,
-    device: str = "cpu",
+    device: str | torch.device = "cpu",
     components: Sequence[str] | None = None,
     transforms: Sequence[Callable[[], Transform]] = (),
 ) -> TransformedEnv:
@@ -82,6 +104,7 @@ def make_env(
             ``task_cfg.get("backend", "cpu")`` pick the builder.
         num_envs: batch size N.
         seed: environment seed.
+        device: the environment's torch device (:func:`env_device`: where an MJX env's state and output live).
         components: the reward leaves that form the K axis; default ``task_cfg["components"]``.
             ``["total"]`` gives plain PPO's single head.
         transforms: factories (zero-argument callables, picklable for collector workers) of transforms
@@ -104,7 +127,7 @@ def make_env(
         raise ValueError(f"num_envs must be at least 1, got {num_envs}")
     components = list(components if components is not None else task_cfg["components"])
     tracked = components + ([TOTAL] if TOTAL not in components else [])
-    env = get_builder(task_cfg["name"], task_cfg.get("backend", "cpu"))(task_cfg, num_envs, seed, device)
+    env = get_builder(task_cfg["name"], task_cfg.get("backend", "cpu"))(task_cfg, num_envs, seed, str(device))
     if transforms and not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     for make_transform in transforms:

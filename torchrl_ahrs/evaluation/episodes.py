@@ -33,7 +33,7 @@ class EpisodeResults:
 
 
 def exploration_type(deterministic: bool) -> ExplorationType:
-    """DETERMINISTIC: the squashed Gaussian's mean, tanh(μ) scaled to the bounds; RANDOM: a sample."""
+    """DETERMINISTIC: the Gaussian's mean (tanh(μ) scaled to the bounds for tanh_normal); RANDOM: a sample."""
     return ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
 
 

@@ -90,7 +90,9 @@ def check_aux_output(output: Any, batch_size: int) -> torch.Tensor:
     if tuple(output.shape) != (batch_size,):
         raise ValueError(f"{AUX_FUNCTION} returned shape {tuple(output.shape)}, expected ({batch_size},)")
     output = output.to(torch.float32)
-    if not torch.isfinite(output).all():
+    # the finiteness test reads a flag back from the device: per step on the CPU only; on an accelerator the
+    # run's FiniteGuard stops training at the first batch holding a non-finite aux reward instead
+    if output.device.type == "cpu" and not torch.isfinite(output).all():
         bad = int((~torch.isfinite(output)).sum())
         raise ValueError(f"{AUX_FUNCTION} returned {bad} non-finite value(s) (NaN or inf)")
     return output
@@ -134,7 +136,8 @@ class AuxiliaryReward(ComponentLeaves):
 
     Append it after :class:`~torchrl_ahrs.rewards.RewardComponents` (the reward must already be a tree)
     and before ``RewardSum``. ``fn`` gets the step as ``{name: [N, ...]}`` (:func:`aux_inputs`) and must
-    return ``[N]`` (or ``[N, 1]``) finite values; anything else stops training with a ``ValueError``.
+    return ``[N]`` (or ``[N, 1]``) finite values; anything else stops training with a ``ValueError`` (on an
+    accelerator, a non-finite value is caught once per batch, by the trainer's ``FiniteGuard``).
 
     Args:
         fn: ``compute_aux_reward(obs: dict[str, Tensor [N, ...]]) -> Tensor [N]``.

@@ -152,9 +152,9 @@ class RuleScheduler(TrainerHookBase):
 
     @property
     def weights(self) -> torch.Tensor:
-        """The current weights ``[K]``: a copy of the estimator's, the one place they live (and are
-        checkpointed, with the estimator)."""
-        return self.estimator.weights.detach().clone().float()
+        """The current weights ``[K]``: a CPU copy of the estimator's, the one place they live (and are
+        checkpointed, with the estimator; on the learner's device). Read once per iteration and decision."""
+        return self.estimator.weights.detach().to("cpu", torch.float32, copy=True)
 
     def set_keys(self, *, episode_reward: Any = None) -> RuleScheduler:
         """Where the episode returns are read: ``("next", *episode_reward, c)``; returns ``self``."""

@@ -69,7 +69,7 @@ class ReturnStatistics:
 
     def add(self, returns: torch.Tensor, total_returns: torch.Tensor | None = None) -> int:
         """Adds episode returns ``[M, K]`` (and optionally the total return ``[M]``); returns rows kept."""
-        returns = returns.detach().to(torch.float64).reshape(-1, self.num_components)
+        returns = returns.detach().to("cpu", torch.float64).reshape(-1, self.num_components)  # once per batch
         finite = torch.isfinite(returns).all(dim=-1)
         self.dropped_non_finite += int((~finite).sum())
         kept = returns[finite]
@@ -77,7 +77,7 @@ class ReturnStatistics:
         self.sum += kept.sum(dim=0)  # sum_m R_mk
         self.sum_sq += (kept * kept).sum(dim=0)  # sum_m R_mk^2
         if total_returns is not None:
-            totals = total_returns.detach().to(torch.float64).reshape(-1)[finite]
+            totals = total_returns.detach().to("cpu", torch.float64).reshape(-1)[finite]
             self.total_count += totals.shape[0]
             self.total_sum += float(totals.sum())
         return int(kept.shape[0])

@@ -138,7 +138,7 @@ class ConsoleProgress(TrainerHookBase):
         if shares is None:  # an estimator that does not record its shares: the reward spreads stand in
             rewards = torch.cat(
                 [batch.get(("next", "reward", c)).float().reshape(-1, 1) for c in self.components], dim=-1
-            )  # [N, K]
+            ).cpu()  # [N, K], beside the CPU weights
             shares = effective_shares(rewards, weights)
         shares = shares.detach().float().cpu()
         returns = self.last_component_returns or [float("nan")] * len(self.components)

@@ -45,6 +45,8 @@ class PPOMinibatches(TrainerHookBase):
         post_estimate: ``(batch, new_batch: bool) -> batch`` applied after each epoch's estimate, e.g.
             :class:`~torchrl_ahrs.training.value_norm.ValueTargetNormalization`; ``new_batch`` is true on
             the first epoch of each collected batch.
+        device: where the permutation is drawn (the batch's device: no index copy per epoch; a CUDA
+            generator draws other permutations than the CPU one for the same seed).
 
     Example:
         >>> import torch
@@ -56,12 +58,13 @@ class PPOMinibatches(TrainerHookBase):
         True
     """
 
-    def __init__(self, estimator, num_minibatches: int, seed: int = 0, keys=None, post_estimate=None):
+    def __init__(self, estimator, num_minibatches: int, seed: int = 0, keys=None, post_estimate=None, device="cpu"):
         if num_minibatches < 1:
             raise ValueError(f"num_minibatches must be at least 1, got {num_minibatches}")
         self.estimator = estimator
         self.num_minibatches = num_minibatches
-        self.generator = torch.Generator().manual_seed(seed)
+        self.device = torch.device(device)
+        self.generator = torch.Generator(device=self.device).manual_seed(seed)
         self.keys = list(keys) if keys is not None else None
         self.post_estimate = post_estimate
         self._minibatches: list[TensorDictBase] = []
@@ -76,7 +79,7 @@ class PPOMinibatches(TrainerHookBase):
         if self.post_estimate is not None:
             selected = self.post_estimate(selected, new_batch)
         flat = selected.reshape(-1)
-        order = torch.randperm(flat.shape[0], generator=self.generator)
+        order = torch.randperm(flat.shape[0], generator=self.generator, device=self.device)
         sizes = [len(chunk) for chunk in order.chunk(self.num_minibatches)]
         # one gather per epoch, then contiguous views: a gather per minibatch costs a TensorDict index per key
         self._minibatches = list(flat[order].split(sizes, 0))

@@ -8,7 +8,7 @@ import torch
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
 from torchrl.data import TensorSpec
-from torchrl.modules import ProbabilisticActor, TanhNormal
+from torchrl.modules import IndependentNormal, ProbabilisticActor, TanhNormal
 
 from torchrl_ahrs.value import MultiHeadCritic, make_mlp
 
@@ -57,6 +57,9 @@ class RunningNorm(nn.Module):
         return normalized.clamp(-self.clip, self.clip)
 
 
+DISTRIBUTIONS = ("tanh_normal", "normal")
+
+
 def build_actor(
     obs_norm: RunningNorm,
     obs_dim: int,
@@ -65,14 +68,44 @@ def build_actor(
     activation: str = "tanh",
     init_log_std: float = -0.5,
     in_key: str = "observation",
+    distribution: str = "tanh_normal",
 ) -> ProbabilisticActor:
-    """Gaussian policy squashed into the action bounds (TanhNormal), state-independent scale."""
+    """Gaussian policy with a state-independent scale ``sigma = exp(log_std)`` ``[A]``.
+
+    ``distribution``:
+
+    - ``"tanh_normal"``: squashed into the action bounds (TorchRL's ``TanhNormal``): every sample is a
+      valid action, and its log-probability includes the squash;
+    - ``"normal"``: unsquashed (TorchRL's ``IndependentNormal``), as CleanRL's and rsl_rl's PPO: samples
+      may leave the bounds, and the environment must clip them on the way in
+      (:class:`~torchrl_ahrs.envs.common.clip_actions.ClipActionToSpec`) while the rollout keeps the sample.
+
+    Example:
+        >>> import torch
+        >>> from torchrl.data import Bounded
+        >>> spec = Bounded(-torch.ones(2), torch.ones(2), (2,))
+        >>> actor = build_actor(RunningNorm(3), 3, spec, [8], init_log_std=-0.5, distribution="normal")
+        >>> from tensordict import TensorDict
+        >>> td = actor(TensorDict({"observation": torch.zeros(4, 3)}, [4]))
+        >>> torch.allclose(td["scale"], torch.full((4, 2), -0.5).exp())  # sigma_0 = exp(init_log_std)
+        True
+    """
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution must be one of {', '.join(DISTRIBUTIONS)}, got {distribution!r}")
     action_dim = action_spec.shape[-1]
     loc_net = make_mlp(obs_dim, hidden_sizes, action_dim, activation)
     nn.init.orthogonal_(loc_net[-1].weight, 0.01)  # type: ignore[arg-type]  # small initial actions keep early rollouts near rest
     # the parameter is the log standard deviation: scale_mapping="exp" maps it to sigma = exp(init_log_std)
     scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=float(init_log_std))
     module = TensorDictModule(nn.Sequential(obs_norm, loc_net, scale), in_keys=[in_key], out_keys=["loc", "scale"])
+    if distribution == "normal":
+        return ProbabilisticActor(
+            module,
+            in_keys=["loc", "scale"],
+            spec=action_spec,
+            distribution_class=IndependentNormal,
+            return_log_prob=True,
+        )
     low, high = action_spec.space.low, action_spec.space.high
     return ProbabilisticActor(
         module,

@@ -41,9 +41,9 @@ def effective_shares(advantages: torch.Tensor, weights: torch.Tensor) -> torch.T
     spread = flat.std(0) if flat.shape[0] > 1 else flat.abs().mean(0)  # std(A_k) over the batch
     contribution = weights.abs() * spread  # |w_k| std(A_k)
     total = contribution.sum()  # sum_j |w_j| std(A_j)
-    if not torch.isfinite(total) or total <= 0:
-        return torch.full_like(contribution, 1.0 / contribution.numel())  # no spread at all: uniform
-    return contribution / total  # share_k
+    uniform = torch.full_like(contribution, 1.0 / contribution.numel())  # no spread at all: uniform
+    spread_out = torch.isfinite(total) & (total > 0)  # a tensor test, not a Python branch: no device sync
+    return torch.where(spread_out, contribution / total, uniform)  # share_k
 
 
 def mix_advantages(advantages: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:

@@ -202,7 +202,7 @@ class EnvPoolEnv(EnvBase):
                 "env.reset with a '_reset' mask (collectors and rollout do) before stepping again, "
                 "otherwise EnvPool would return its autoreset step as a transition."
             )
-        action = tensordict.get("action")
+        action = tensordict.get("action").detach()  # env.rollout(policy) outside no_grad hands a graph-carrying action
         action_np = action.numpy() if action.device.type == "cpu" else action.cpu().numpy()
         obs, reward, terminated, truncated, info = self._pool.step(action_np)
         env_id = info["env_id"]

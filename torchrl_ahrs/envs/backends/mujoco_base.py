@@ -46,8 +46,8 @@ Hooks (override in the subclass):
 * ``init_buffers()`` — allocate per-env tensors [N, ...]; called once in ``__init__`` before the first reset
   (set task attributes the hooks need *before* calling ``super().__init__``).
 * ``on_reset(env_ids)`` — clear per-env buffers (previous potential, last action); state is fresh.
-* ``apply_action(action [N, A] float32) -> ctrl numpy [N, nu]`` — default: clip to [-1, 1] (ctrlrange
-  scaling is the model's job, use ``gear``). Called once per control step.
+* ``apply_action(action [N, A] float32) -> ctrl [N, nu]`` float64, numpy or torch on the action's device (MJX
+  then stays on its device) — default: clip to [-1, 1] (ctrlrange scaling: ``gear``). Once per control step.
 * ``substep_control(env_slice, qpos [n, nq], qvel [n, nv]) -> ctrl numpy [n, nu]`` — set
   ``per_substep_control = True`` to recompute ctrl before every physics substep (PD torques). Runs in the
   worker threads on disjoint slices: read ``self.ctrl[env_slice]`` (the targets), write nothing shared.
@@ -207,9 +207,9 @@ class BatchedMujocoEnv(EnvBase):
     def on_reset(self, env_ids: np.ndarray) -> None:
         """Clears per-env buffers of the envs ``env_ids`` after their state was reset."""
 
-    def apply_action(self, action: torch.Tensor) -> np.ndarray:
-        """Maps the policy action [N, A] to MuJoCo ctrl [N, nu]; default: clip to [-1, 1]."""
-        return action.clamp(-1.0, 1.0).double().numpy()
+    def apply_action(self, action: torch.Tensor) -> np.ndarray | torch.Tensor:
+        """Maps the policy action [N, A] to MuJoCo ctrl [N, nu] (numpy or torch, float64); default: clip to [-1, 1]."""
+        return action.clamp(-1.0, 1.0).double()
 
     def substep_control(self, env_slice: slice, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """Ctrl [n, nu] for the slice before each substep (only if ``per_substep_control``)."""
@@ -232,7 +232,7 @@ class BatchedMujocoEnv(EnvBase):
 
     def terminated(self) -> torch.Tensor:
         """Terminal-state flags [N] bool; default never."""
-        return torch.zeros(self.num_envs, dtype=torch.bool)
+        return torch.zeros(self.num_envs, dtype=torch.bool, device=self.qpos.device)
 
     # ---------------------------------------------------------------- physics
     def _gather(self, env_slice: slice) -> None:
@@ -273,6 +273,9 @@ class BatchedMujocoEnv(EnvBase):
                 mujoco.mj_rnePostConstraint(model, datas[i])
         self._gather(env_slice)
 
+    def _write_ctrl(self, ctrl: np.ndarray | torch.Tensor) -> None:
+        self.ctrl[:] = ctrl  # apply_action's ctrl, numpy for the worker threads (a CPU tensor converts in place)
+
     def _physics_step(self) -> None:
         """Advances every env by ``decimation`` substeps on the pool plus the main thread."""
         if self.per_substep_control:
@@ -298,12 +301,8 @@ class BatchedMujocoEnv(EnvBase):
         )
         self.action_spec = Bounded(-1.0, 1.0, shape=(n, self.action_dim), dtype=torch.float32)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
-        self.done_spec = Composite(
-            done=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            shape=(n,),
-        )
+        flags = ("done", "terminated", "truncated")
+        self.done_spec = Composite({k: Categorical(2, shape=(n, 1), dtype=torch.bool) for k in flags}, shape=(n,))
 
     def _observation_dim(self) -> int:
         return self.observation().shape[-1]
@@ -319,8 +318,8 @@ class BatchedMujocoEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         # rewards see the action the robot executed: Gaussian policies may sample outside the box
-        self.action = tensordict.get("action").detach().to("cpu", torch.float32).clamp(-1.0, 1.0)
-        self.ctrl[:] = self.apply_action(self.action)
+        self.action = tensordict.get("action").detach().to(self.qpos.device, torch.float32).clamp(-1.0, 1.0)
+        self._write_ctrl(self.apply_action(self.action))
         self._physics_step()
         self.episode_steps += 1
         self.after_physics_step()
@@ -349,11 +348,12 @@ class BatchedMujocoEnv(EnvBase):
             env_ids = reset_mask.reshape(self.num_envs).cpu().numpy().nonzero()[0]
         if len(env_ids):
             self.reset_envs(env_ids)
-        zeros = torch.zeros(self.num_envs, 1, dtype=torch.bool)
+        zeros = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.qpos.device)  # the hooks' device
+        zero_terms = {name: torch.zeros(self.num_envs, device=self.qpos.device) for name in self.reward_term_names}
         out = TensorDict(
             {
                 "observation": self.observation().to(torch.float32),
-                "info": self._info({name: torch.zeros(self.num_envs) for name in self.reward_term_names}),
+                "info": self._info(zero_terms),
                 "done": zeros.clone(),
                 "terminated": zeros.clone(),
                 "truncated": zeros.clone(),

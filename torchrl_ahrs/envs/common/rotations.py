@@ -27,6 +27,6 @@ def quat_rotate_inverse(quat: torch.Tensor, vec: torch.Tensor) -> torch.Tensor:
 
 def body_axis(quat: torch.Tensor, axis: int) -> torch.Tensor:
     """World-frame direction [*B, 3] of the body's x (0), y (1) or z (2) axis."""
-    basis = torch.zeros(*quat.shape[:-1], 3, dtype=quat.dtype)
+    basis = torch.zeros(*quat.shape[:-1], 3, dtype=quat.dtype, device=quat.device)
     basis[..., axis] = 1.0
     return quat_rotate(quat, basis)

@@ -38,12 +38,13 @@ def mujoco_snapshot(env: Any) -> dict[str, Any]:
         "ctrl": env.ctrl.copy(),
         "action": env.action.clone(),
         "episode_steps": env.episode_steps.clone(),
-        "rng": _pickled(env.rng.bit_generator.state),  # 128-bit integers: bytes, so TensorDict can carry it
+        "rng": pickled(env.rng.bit_generator.state),  # 128-bit integers: bytes, so TensorDict can carry it
         "task": {name: copy.deepcopy(getattr(env, name)) for name in env.episode_state},
     }
 
 
-def _pickled(value: Any) -> torch.Tensor:
+def pickled(value: Any) -> torch.Tensor:
+    """``value`` pickled into a uint8 tensor (128-bit generator states survive TensorDict and pipes)."""
     return torch.frombuffer(bytearray(pickle.dumps(value)), dtype=torch.uint8)
 
 

@@ -127,6 +127,7 @@ class AntEnv(BatchedMujocoEnv):
         self.target_xy = torch.tensor(target_xy, dtype=torch.float64)
         low, high = model.jnt_range[1:, 0], model.jnt_range[1:, 1]  # joint 0 is the free root
         self.dof_low, self.dof_high = torch.from_numpy(low.copy()), torch.from_numpy(high.copy())
+        self._dof_range_np = (low.copy(), high.copy())  # reset_state draws on the host, whatever the env's device
         super().__init__(model, num_envs, decimation, max_episode_steps, num_threads, seed, device)
 
     def init_buffers(self) -> None:
@@ -137,7 +138,7 @@ class AntEnv(BatchedMujocoEnv):
         n, model = len(env_ids), self.model
         qpos = np.tile(model.qpos0, (n, 1))
         # joints: zero + U(−0.2, 0.2), clamped into their limits (Isaac Gym's reset)
-        qpos[:, 7:] = np.clip(rng.uniform(-0.2, 0.2, (n, model.nu)), self.dof_low.numpy(), self.dof_high.numpy())
+        qpos[:, 7:] = np.clip(rng.uniform(-0.2, 0.2, (n, model.nu)), *self._dof_range_np)
         qvel = np.zeros((n, model.nv))
         qvel[:, 6:] = rng.uniform(-0.1, 0.1, (n, model.nu))
         return qpos, qvel

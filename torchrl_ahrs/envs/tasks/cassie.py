@@ -150,6 +150,9 @@ class CassieEnv(BatchedMujocoEnv):
         self.last_contact = torch.zeros(n, feet, dtype=torch.bool)
         self.fallen = torch.zeros(n, dtype=torch.bool)
         self.terms = {name: torch.zeros(n, dtype=torch.float64) for name in self.reward_term_names}
+        # control steps since each env's reset, on the host: which envs resample their command is known
+        # without reading episode_steps back from the env's device (a sync per step on an accelerator)
+        self.resample_clock = np.zeros(n, np.int64)
 
     def reset_state(self, env_ids: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         n, layout = len(env_ids), self.layout
@@ -161,7 +164,8 @@ class CassieEnv(BatchedMujocoEnv):
         return qpos, qvel
 
     def on_reset(self, env_ids: np.ndarray) -> None:
-        ids = torch.as_tensor(env_ids, dtype=torch.long)
+        ids = torch.as_tensor(env_ids, dtype=torch.long, device=self.qpos.device)
+        self.resample_clock[env_ids] = 0
         self.last_action[ids] = 0.0
         self.last_dof_vel[ids] = 0.0
         self.feet_air_time[ids] = 0.0
@@ -169,20 +173,20 @@ class CassieEnv(BatchedMujocoEnv):
         self.fallen[ids] = False
         self._resample_commands(ids)
 
-    def _resample_commands(self, ids: torch.Tensor) -> None:
+    def _resample_commands(self, ids: torch.Tensor | np.ndarray) -> None:
         """Draws commands uniformly in their ranges for envs ``ids``; short planar commands become 0."""
         if len(ids) == 0:
             return
         draw = torch.from_numpy(self.rng.uniform(self.command_low, self.command_high, (len(ids), 3)))
         moving = draw[:, :2].norm(dim=-1, keepdim=True) > self.min_planar_command
         draw[:, :2] *= moving  # legged_gym: ‖cmd_xy‖ ≤ 0.2 → stand still
-        self.commands[ids] = draw
+        self.commands[ids] = draw.to(self.commands.device)  # the host generator's draw: O(len(ids)·3) to the device
 
     # ---------------------------------------------------------------- control
-    def apply_action(self, action: torch.Tensor) -> np.ndarray:
+    def apply_action(self, action: torch.Tensor) -> torch.Tensor:
         target = self.default_joint_pos + self.action_scale * action.clamp(-1.0, 1.0).double()  # q* = q0 + s·a
-        ctrl = np.zeros((self.num_envs, self.model.nu))
-        ctrl[:, self.layout.actuator_ids] = target.numpy()  # PD servos read ctrl as the target angle
+        ctrl = torch.zeros(self.num_envs, self.model.nu, dtype=torch.float64, device=target.device)
+        ctrl[:, self._act_idx] = target  # PD servos read ctrl as the target angle
         return ctrl
 
     # ---------------------------------------------------------------- state read-out
@@ -222,11 +226,15 @@ class CassieEnv(BatchedMujocoEnv):
         self.last_action = self.action.clone()
         self.last_dof_vel = dof_vel.clone()
         self.last_contact = contact
-        due = (self.episode_steps % self.resampling_steps == 0).nonzero().flatten()
-        self._resample_commands(due)
+        self.resample_clock += 1  # = episode_steps, kept on the host
+        self._resample_commands(np.flatnonzero(self.resample_clock % self.resampling_steps == 0))
 
     def reward_terms(self) -> dict[str, torch.Tensor]:
         return self.terms
+
+    def set_extra_state(self, state: dict) -> None:
+        super().set_extra_state(state)
+        self.resample_clock = self.episode_steps.cpu().numpy().copy()  # the host mirror of the restored counters
 
     def terminated(self) -> torch.Tensor:
         return self.fallen.clone()

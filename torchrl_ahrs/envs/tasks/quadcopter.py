@@ -86,8 +86,8 @@ class QuadcopterEnv(BatchedMujocoEnv):
         qvel = rng.uniform(-0.2, 0.2, (n, self.model.nv))
         return qpos, qvel
 
-    def apply_action(self, action: torch.Tensor) -> np.ndarray:
-        return ((action.clamp(-1.0, 1.0) + 1.0) / 2.0).double().numpy()  # [-1, 1] → thrust fraction [0, 1]
+    def apply_action(self, action: torch.Tensor) -> torch.Tensor:
+        return ((action.clamp(-1.0, 1.0) + 1.0) / 2.0).double()  # [-1, 1] → thrust fraction [0, 1]
 
     def _angvel_world(self) -> torch.Tensor:
         return quat_rotate(self.qpos[:, 3:7], self.qvel[:, 3:6])  # MuJoCo stores it in the body frame
