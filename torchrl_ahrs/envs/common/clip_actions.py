@@ -39,8 +39,7 @@ class ClipActionToSpec(Transform):
 
     def _inv_apply_transform(self, action: torch.Tensor) -> torch.Tensor:
         space = self._action_spec().space
-        low, high = space.low.to(action.device), space.high.to(action.device)
-        return torch.maximum(torch.minimum(action, high), low)  # a_env = min(max(a, low), high) per dimension
+        return action.clamp(space.low.to(action.device), space.high.to(action.device))  # a_env = clip(a, low, high)
 
     def _action_spec(self) -> TensorSpec:
         if self.parent is None:
