@@ -152,3 +152,37 @@ def test_ant_v5_steps_like_gymnasium_from_the_same_state():
         assert bool(terminated[0]) == ref_terminated and not truncated[0]
         if ref_terminated:
             break
+
+
+def test_ant_v5_without_contact_forces_observes_and_pays_like_gymnasium():
+    """``include_cfrc_ext_in_observation: false`` against gymnasium's Ant-v5 with the same option: the
+    27-entry observation and the whole reward, contact cost included, step for step."""
+    gym = pytest.importorskip("gymnasium")
+    cfg = load_task_config("ant_v5")
+    cfg.include_cfrc_ext_in_observation = False
+    env = make_env(cfg, num_envs=1, seed=3)
+    assert env.observation_spec["observation"].shape == (1, 27)
+    check_env_specs(env)
+    reference = gym.make("Ant-v5", include_cfrc_ext_in_observation=False).unwrapped
+    reference.reset(seed=0)
+    td = env.reset()
+    start = td["observation"][0].double().numpy()
+    assert start.shape == (27,)
+    # float32 observation: start gymnasium from the rounded state (both then run the same physics)
+    reference.set_state(np.concatenate([[0.0, 0.0], start[:13]]), start[13:27])
+    rng = np.random.default_rng(0)
+    paid_contact = 0.0
+    for step in range(20):  # float32 starting state: the two trajectories drift apart (~1e-3 by step 30)
+        action = rng.uniform(-1.0, 1.0, size=(1, 8))
+        td["action"] = torch.as_tensor(action, dtype=torch.float32)
+        out = env.step(td)
+        ref_obs, ref_reward, ref_terminated, _, ref_info = reference.step(action[0])
+        np.testing.assert_allclose(out["next", "observation"][0].numpy(), ref_obs, atol=1e-4, err_msg=f"step {step}")
+        assert out["next", "reward", "total"].item() == pytest.approx(ref_reward, abs=1e-4), step
+        assert out["next", "reward", "contact"].item() == pytest.approx(ref_info["reward_contact"], abs=1e-6), step
+        paid_contact += ref_info["reward_contact"]
+        assert bool(out["next", "terminated"].item()) == ref_terminated
+        if ref_terminated:
+            break
+        td = out["next"].clone()
+    assert paid_contact < 0.0, "no contact cost in these steps: the comparison would not see it dropped"

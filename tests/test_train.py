@@ -48,6 +48,19 @@ def test_hdppo_learns_point_reach_and_logs_every_component(tmp_path):
     assert "point_reach" in (tmp_path / "config.yaml").read_text()
 
 
+@pytest.mark.slow
+def test_ant_v5_preset_regime_learns(tmp_path):
+    """The CI learning test on a preset regime (issue 12, item 7): ant_v5's CleanRL-geometry preset."""
+    cfg = make_cfg("task=ant_v5", "method=ppo", "trainer.total_frames=61440", "trainer.progress_bar=false")
+    assert cfg.trainer.mini_batch_size == 64 and cfg.ppo.value_norm == "running"  # the preset, not the defaults
+    train(cfg, tmp_path)
+    reward_per_step = read_scalar(tmp_path, "reward/total")
+    first, last = sum(reward_per_step[:3]) / 3, sum(reward_per_step[-3:]) / 3
+    # mean action is ~0 for the untrained tanh-Gaussian: ~+0.07 per step (survive 1, ctrl cost ~0.9); the
+    # preset's recorded runs pass +0.3 per step by 60k frames (benchmarks/results/learning/ant_v5_preset_seed1)
+    assert last > first + 0.1, f"reward per step did not go up: first {first:.3f}, last {last:.3f}"
+
+
 def test_ppo_is_the_same_loop_with_one_head_on_total(tmp_path):
     cfg = make_cfg("task=point_reach", "method=ppo", "trainer.total_frames=4096", *FAST)
     metrics = train(cfg, tmp_path)

@@ -19,9 +19,11 @@ from typing import Any
 from torchrl.envs import EnvBase, TransformedEnv
 
 from torchrl_ahrs.envs.backends.envpool import INFO, EnvPoolEnv
+from torchrl_ahrs.envs.common.observation_prefix import KeepObservationPrefix
 from torchrl_ahrs.rewards.components import RewardComponents
 
 MAKE_KWARGS = ("max_episode_steps",)  # task fields forwarded to envpool.make when present
+ANT_STATE_SIZE = 27  # gymnasium Ant-v5's observation without cfrc_ext: qpos[2:] (13) + qvel (14)
 
 
 def _make_kwargs(task_cfg: Mapping[str, Any]) -> dict[str, Any]:
@@ -69,10 +71,17 @@ def make_info_terms_task(task_cfg: Mapping[str, Any], num_envs: int, seed: int, 
 def make_ant_v5(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: str) -> EnvBase:
     """EnvPool Ant-v5; components forward, ctrl, contact, survive sum to the native reward.
 
+    ``include_cfrc_ext_in_observation: false`` (gymnasium Ant-v5's option of that name) keeps the first
+    27 observation entries and drops the 78 contact-force ones; the reward, contact cost included, is
+    unchanged (EnvPool's own ``use_contact_force=False`` would drop the contact cost too).
+
     Example:
         >>> from torchrl_ahrs.envs.registry import load_task_config
         >>> env = make_ant_v5(load_task_config("ant_v5"), num_envs=2, seed=0, device="cpu")
         >>> sorted(env.rollout(2)["next", "reward"].keys())
         ['contact', 'ctrl', 'forward', 'survive', 'total']
     """
-    return make_info_terms_task(task_cfg, num_envs, seed, device)
+    env = make_info_terms_task(task_cfg, num_envs, seed, device)
+    if not task_cfg.get("include_cfrc_ext_in_observation", True):
+        env.append_transform(KeepObservationPrefix(ANT_STATE_SIZE))
+    return env
