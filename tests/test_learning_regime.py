@@ -126,3 +126,20 @@ def test_gae_bootstraps_on_truncation_but_not_on_termination():
     )
     advantage = gae(batch)["advantage"].reshape(-1).tolist()
     assert advantage == pytest.approx([1.0 + 0.9 * 10.0 - 10.0, 1.0 - 10.0])
+
+
+def test_cassie_preset_carries_legged_gyms_ppo_numbers():
+    """The oracle is the preset's cited source, legged_gym's ``CassieRoughCfgPPO`` (with ``LeggedRobotCfgPPO``):
+    a config edit once dropped the network and the value normalisation without any test noticing."""
+    from conftest import make_cfg
+
+    cfg = make_cfg("task=cassie", "method=ahrs")
+    frames_per_env = cfg.trainer.frames_per_batch // cfg.trainer.num_envs
+    assert frames_per_env == 24  # num_steps_per_env
+    assert cfg.trainer.num_epochs == 5  # num_learning_epochs
+    assert cfg.trainer.frames_per_batch // cfg.trainer.mini_batch_size == 4  # num_mini_batches
+    assert (cfg.trainer.lr, cfg.ppo.kl_target, cfg.trainer.anneal_lr) == (1e-3, 0.01, False)  # adaptive schedule
+    assert (cfg.ppo.entropy_coeff, cfg.ppo.critic_coeff, cfg.ppo.clip_value) == (0.01, 1.0, 0.2)
+    assert (cfg.ppo.gamma, cfg.ppo.lmbda, cfg.trainer.max_grad_norm) == (0.99, 0.95, 1.0)
+    assert list(cfg.model.hidden_sizes) == [512, 256, 128] and cfg.model.activation == "elu"
+    assert cfg.ppo.value_norm == "running"  # ours: one normalised head per component (K = 10 heads)
