@@ -78,6 +78,7 @@ def test_ppo_is_the_same_loop_with_one_head_on_total(tmp_path):
         ("method.components=[distance,speed]", "does not have"),
         ("trainer.collector=threads", "trainer.collector must be"),
         ("ppo.value_norm=batch", "ppo.value_norm must be running, popart or null"),
+        ("ppo.component_scale=value_norm", "ppo.component_scale=value_norm divides .* set ppo.value_norm=running"),
         ("ppo.kl_target=0", "ppo.kl_target must be a positive number or null"),
         ("ppo.clip_value=-1", "ppo.clip_value must be a positive number or null"),
         ("trainer.device=gpu", "trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'"),

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -107,10 +108,14 @@ def _gae_batch(scale_b: float):
 def test_weighted_gae_component_scale_and_shares(scale):
     from tensordict.nn import TensorDictModule
 
+    from torchrl_ahrs.training.value_norm import make_value_norm
     from torchrl_ahrs.value import WeightedMultiGAE
 
     critic = TensorDictModule(lambda obs: torch.zeros(*obs.shape[:-1], 2), ["observation"], ["state_value"])
-    gae = WeightedMultiGAE(["a", "b"], gamma=0.9, lmbda=0.9, value_network=critic, component_scale=scale)
+    value_norm = make_value_norm("running", 2)
+    gae = WeightedMultiGAE(
+        ["a", "b"], gamma=0.9, lmbda=0.9, value_network=critic, component_scale=scale, value_norm=value_norm
+    )
     gae.set_weights(torch.tensor([2.0, 1.0]))
     td = gae(_gae_batch(scale_b=1000.0))
     raw = td["advantage_components"]
@@ -119,7 +124,7 @@ def test_weighted_gae_component_scale_and_shares(scale):
     elif scale == "standardize":
         flat = raw.reshape(-1, 2)
         mixed = (raw - flat.mean(0)) / (flat.std(0) + 1e-8)
-    else:  # first call: sigma_k = population std of the value target over the batch
+    else:  # a fresh normaliser: sigma_k = population std of the value target over the batch
         mixed = raw / (td["value_target"].reshape(-1, 2).std(0, unbiased=False) + 1e-8)
     expected = (mixed * torch.tensor([2.0, 1.0])).sum(-1, keepdim=True)
     assert torch.allclose(td["advantage"], expected, rtol=1e-4, atol=1e-4)
@@ -130,3 +135,26 @@ def test_weighted_gae_component_scale_and_shares(scale):
         assert 0.4 < gae.shares[0] < 0.9  # the weights, not the reward scale, set the shares
     with pytest.raises(ValueError, match="component_scale must be one of"):
         WeightedMultiGAE(["a"], gamma=0.9, lmbda=0.9, value_network=critic, component_scale="minmax")
+
+
+def test_value_norm_component_scale_reads_the_critics_normaliser():
+    """After the normaliser has folded targets in, A_k is divided by its scale (numpy's std of every target seen),
+    not by the batch's; without a normaliser the choice is refused."""
+    from tensordict.nn import TensorDictModule
+
+    from torchrl_ahrs.training.value_norm import make_value_norm
+    from torchrl_ahrs.value import WeightedMultiGAE
+
+    critic = TensorDictModule(lambda obs: torch.zeros(*obs.shape[:-1], 2), ["observation"], ["state_value"])
+    value_norm = make_value_norm("running", 2)
+    seen = torch.tensor([[0.0, -300.0], [4.0, 500.0], [8.0, 100.0]])
+    value_norm.update(seen)
+    gae = WeightedMultiGAE(
+        ["a", "b"], gamma=0.9, lmbda=0.9, value_network=critic, component_scale="value_norm", value_norm=value_norm
+    )
+    td = gae(_gae_batch(scale_b=1000.0))
+    sigma = torch.from_numpy(np.std(seen.numpy(), axis=0)).float()  # [K] population std of every target seen
+    expected = (td["advantage_components"] / (sigma + 1e-8)).sum(-1, keepdim=True)  # weights 1
+    assert torch.allclose(td["advantage"], expected, rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="pass value_norm="):
+        WeightedMultiGAE(["a"], gamma=0.9, lmbda=0.9, value_network=critic, component_scale="value_norm")

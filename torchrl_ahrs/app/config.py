@@ -120,6 +120,11 @@ def validate_config(cfg: DictConfig) -> None:
     ppo = cfg.ppo
     if ppo.get("value_norm") not in (None, False, True, "running", "popart"):
         raise ConfigError(f"ppo.value_norm must be running, popart or null, got {ppo.get('value_norm')!r}")
+    if ppo.get("component_scale") == "value_norm" and not ppo.get("value_norm"):
+        raise ConfigError(
+            "ppo.component_scale=value_norm divides each component's advantage by its head's scale in "
+            "ppo.value_norm, which is null: set ppo.value_norm=running (or popart)"
+        )
     for name in ("clip_value", "kl_target"):
         value = ppo.get(name)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int | float) or value <= 0):

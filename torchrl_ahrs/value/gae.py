@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
+from torchrl.modules.value_norm import ValueNorm
 from torchrl.objectives.value import GAE
 
 from torchrl_ahrs.value.functional import (
@@ -40,9 +41,12 @@ class WeightedMultiGAE(GAE):
 
     - ``"raw"``: as GAE gives it, so the reward scales, not the weights, decide each component's share;
     - ``"standardize"``: ``(A_k - mean) / std`` over the batch, so the weights alone decide the shares;
-    - ``"value_norm"``: ``A_k / sigma_k`` with ``sigma_k`` a running std of head ``k``'s value target
-      (exponential average over calls, decay ``scale_decay``): the scale a value-normalised critic
-      keeps, steadier than one batch's std and without centring.
+    - ``"value_norm"``: ``A_k / sigma_k`` with ``sigma_k`` head ``k``'s scale in the critic's value
+      normaliser ``value_norm`` (TorchRL's :meth:`~torchrl.modules.value_norm.ValueNorm.scale`, the running
+      std of the value targets of the batches so far): steadier than one batch's std, without centring,
+      and one set of statistics for the critic and the mix. Before the normaliser has seen a batch (its
+      buffers are all zero) the batch's own population std stands in: what it holds once it folds that
+      batch in.
 
     After every call ``shares`` ``[K]`` holds each component's effective share of the mixed advantage,
     ``w_k std(A'_k) / sum_j w_j std(A'_j)`` with ``A'`` the scaled advantages (logged as ``share/<c>``).
@@ -59,7 +63,9 @@ class WeightedMultiGAE(GAE):
         value_network: a module writing ``"state_value"`` ``[*B, T, K]``.
         weights: initial ``[K]`` weights (default all ones).
         component_scale: ``"raw"`` | ``"standardize"`` | ``"value_norm"`` (see above).
-        scale_decay: ``value_norm`` only: decay of the running target variance per call.
+        value_norm: the critic's per-head value normaliser (a TorchRL ``ValueNorm`` with ``shape=K``, e.g.
+            from :func:`~torchrl_ahrs.training.value_norm.make_value_norm`), or ``None``; required by
+            ``component_scale="value_norm"``, only read here (its owner updates it).
         **kwargs: forwarded to :class:`torchrl.objectives.value.GAE`.
 
     Example:
@@ -109,7 +115,7 @@ class WeightedMultiGAE(GAE):
         value_network: TensorDictModule | None,
         weights: torch.Tensor | None = None,
         component_scale: str = "raw",
-        scale_decay: float = 0.99,
+        value_norm: ValueNorm | None = None,
         **kwargs,
     ):
         super().__init__(gamma=gamma, lmbda=lmbda, value_network=value_network, **kwargs)
@@ -118,13 +124,15 @@ class WeightedMultiGAE(GAE):
             raise ValueError("WeightedMultiGAE needs at least one component")
         if component_scale not in COMPONENT_SCALES:
             raise ValueError(f"component_scale must be one of {', '.join(COMPONENT_SCALES)}, got {component_scale!r}")
+        if component_scale == "value_norm" and value_norm is None:
+            raise ValueError(
+                "component_scale='value_norm' divides each A_k by its head's scale in the critic's value "
+                "normaliser: pass value_norm= (in a run: ppo.value_norm=running or popart)"
+            )
         self.component_scale = component_scale
-        self.scale_decay = float(scale_decay)
+        self.value_norm = value_norm
         self.register_buffer("weights", torch.ones(len(self.components)))
         self.register_buffer("shares", torch.full((len(self.components),), 1.0 / len(self.components)))
-        self.register_buffer("target_mean", torch.zeros(len(self.components)))
-        self.register_buffer("target_var", torch.ones(len(self.components)))
-        self.register_buffer("target_calls", torch.zeros((), dtype=torch.long))
         if weights is not None:
             self.set_weights(weights)
 
@@ -202,23 +210,19 @@ class WeightedMultiGAE(GAE):
         return tensordict
 
     def scale_components(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
-        """``advantages [*B, T, K]`` scaled by ``component_scale``; ``targets [*B, T, K]`` feed ``value_norm``."""
+        """``advantages [*B, T, K]`` scaled by ``component_scale``; ``targets [*B, T, K]`` (reward units) give
+        ``value_norm``'s first scale."""
         if self.component_scale == "standardize":
             return normalize_components(advantages)
         if self.component_scale == "raw":
             return advantages
-        flat = targets.reshape(-1, targets.shape[-1]).to(self.target_var.dtype)
-        if self.target_calls == 0:
-            self.target_mean.copy_(flat.mean(0))
-            self.target_var.copy_(flat.var(0, unbiased=False))
-        else:
-            decay = self.scale_decay
-            self.target_mean.mul_(decay).add_((1 - decay) * flat.mean(0))  # m <- d m + (1 - d) E[G]
-            self.target_var.mul_(decay).add_(
-                (1 - decay) * (flat - self.target_mean).pow(2).mean(0)
-            )  # v <- d v + (1-d) E[(G-m)^2]
-        self.target_calls += 1
-        return scale_by(advantages, self.target_var.sqrt())  # A_k / sigma_k
+        value_norm = self.value_norm
+        assert value_norm is not None  # checked in __init__
+        if any(buffer.any() for buffer in value_norm.buffers()):
+            scale = value_norm.scale()  # sigma_k of the targets seen so far
+        else:  # a fresh normaliser (all buffers zero) would give its epsilon floor
+            scale = targets.reshape(-1, targets.shape[-1]).std(0, unbiased=False)  # sigma_k = std over the batch
+        return scale_by(advantages, scale)  # A_k / sigma_k
 
     def _prepare_signals(self, reward, done, terminated, value):
         rewards = stack_components([reward.get(name) for name in self.components])  # [*B, T, K]
