@@ -21,10 +21,11 @@ BUDGET = 1000
 
 
 def make_run(root, method, seed, final=None, checkpoint_frames=BUDGET, components=(), rows=None, **files):
-    """A run directory like train() writes: config.yaml, return/total.csv, checkpoint.pt.
+    """A run directory like train() writes: config.yaml, return/total.csv, reward/total.csv, checkpoint.pt.
 
     With ``final`` = f, return/total has rows (500, 999.0) outside the final window and (950, f - 1),
-    (1000, f + 1) inside it, so the run's final return is f by hand: ((f - 1) + (f + 1)) / 2.
+    (1000, f + 1) inside it, so the run's final return is f by hand: ((f - 1) + (f + 1)) / 2; reward/total
+    the same shape around f / 100, the final reward per step.
     """
     run_dir = root / "point_reach" / method / f"seed_{seed}"
     scalars = run_dir / "metrics" / "scalars"
@@ -40,6 +41,10 @@ def make_run(root, method, seed, final=None, checkpoint_frames=BUDGET, component
     if rows is None:
         rows = [(500, 999.0), (950, final - 1.0), (1000, final + 1.0)]
     (scalars / "return" / "total.csv").write_text("".join(f"{s},{v}\n" for s, v in rows))
+    if final is not None:
+        (scalars / "reward").mkdir()
+        per_step = [(500, 9.0), (950, final / 100 - 0.01), (1000, final / 100 + 0.01)]
+        (scalars / "reward" / "total.csv").write_text("".join(f"{s},{v}\n" for s, v in per_step))
     for component, value in components:
         (scalars / "return" / f"{component}.csv").write_text(f"960,{value}\n")
     if checkpoint_frames is not None:
@@ -111,6 +116,11 @@ def test_table_values_match_hand_computation(report_dir):
     assert "| point_reach | 20.00 ± 10.00 | 30.00 ± 7.07 (+50.0 %) [2 seeds] | -4.00 ± – (-120.0 %) [1 seeds] |" in (
         markdown
     )
+    # the final reward per step: the same statistics of f / 100
+    assert float(ppo["reward_per_step_mean"]) == pytest.approx(0.2)  # (0.1 + 0.2 + 0.3) / 3
+    assert float(hdppo["reward_per_step_change_vs_ppo_pct"]) == pytest.approx(50.0)  # (0.3 - 0.2) / 0.2
+    row = "| point_reach | 0.2000 ± 0.1000 | 0.3000 ± 0.0707 (+50.0 %) [2 seeds] | -0.0400 ± – (-120.0 %) [1 seeds] |"
+    assert row in markdown
 
 
 def test_failed_and_missing_seeds_are_listed(report_dir):

@@ -111,6 +111,10 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
         "against PPO on the same task in % of |PPO| (positive = higher return).\n",
         "## Final return (paper Tables I-II layout)\n",
         paper_table(tables["summary"]),
+        "\n**Final reward per step**: mean of a run's `reward/total` rows (the native reward per step over every "
+        "frame of one iteration's batch) in the same final window. Unlike a return it counts the frames of the "
+        "episodes still running, so it is the steadier measure where few episodes end per iteration (Cassie).\n",
+        paper_table(tables["summary"], metric="reward_per_step_", digits=4),
         "\n## Statistics per method and task\n",
         "Bootstrap: percentile 95 % interval of the mean over seeds (10 000 resamples, fixed seed); with a "
         "handful of seeds it is a spread, not a significance test. IQM: mean of the middle half of the seeds (the mean "

@@ -72,13 +72,15 @@ def load_run(path: Path) -> Run:
     for group in ("return", "weight", "share"):
         for csv_path in sorted((scalars / group).glob("*.csv")):
             run.curves[f"{group}/{csv_path.stem}"] = read_scalar(csv_path)
+    if (scalars / "reward" / "total.csv").is_file():  # the native reward per step over every frame of each batch
+        run.curves["reward/total"] = read_scalar(scalars / "reward" / "total.csv")
     logged = [name.split("/", 1)[1] for name in run.curves if name.startswith("return/")]
     task_order = list(config.get("task", {}).get("components") or [])  # the task's K axis order first
     run.components = [c for c in task_order if c in logged] + [c for c in logged if c not in task_order]
     run.components = [c for c in run.components if c != "total"]
     for name, (steps, values) in run.curves.items():
-        if name.startswith("return/"):
-            run.final[name] = final_return(steps, values, run.total_frames)
+        if name.startswith("return/") or name == "reward/total":
+            run.final[name] = final_return(steps, values, run.total_frames)  # mean over the last 10 % of frames
     run.decisions = read_jsonl(directory.decisions)
     run.llm_calls = read_jsonl(directory.llm_calls)
 

@@ -21,7 +21,8 @@ class Run:
     """One run directory of a sweep and what the report needs from it.
 
     ``curves`` maps a scalar name (``return/total``, ``return/<c>``, ``weight/<c>``, ``share/<c>``) to (steps [R], values
-    [R]); ``final`` maps ``return/total`` and ``return/<c>`` to the final return (NaN when unavailable).
+    [R]); ``final`` maps ``return/total`` and ``return/<c>`` to the final return, and ``reward/total`` to the final
+    reward per step (NaN when unavailable).
 
     Example:
         >>> run = Run(None, "point_reach", "ppo", 2, "missing", "no run directory for this seed")

@@ -34,11 +34,15 @@ def cells(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
 
 def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
     """One row per (task, method): final return over the finished seeds (mean, sample std, bootstrap
-    95 % CI of the mean, IQM) and its change against PPO's mean on the same task in % of |PPO|."""
+    95 % CI of the mean, IQM) and its change against PPO's mean on the same task in % of |PPO|; the same
+    mean, std and change for the final native reward per step (``reward_per_step_*``), which counts every
+    frame where a return counts only the episodes that ended."""
     rows: list[dict[str, Any]] = []
     for (task, method), group in cells(runs).items():
         finals = [r.final_return for r in group if r.ok]
+        per_step = [r.final.get("reward/total", math.nan) for r in group if r.ok]
         mean, std = mean_std(finals)
+        per_step_mean, per_step_std = mean_std(per_step)
         low, high = bootstrap_ci(finals)
         rows.append(
             {
@@ -51,13 +55,19 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 "ci95_low": low,
                 "ci95_high": high,
                 "iqm": interquartile_mean(finals),
+                "reward_per_step_mean": per_step_mean,
+                "reward_per_step_std": per_step_std,
                 "seeds": " ".join(str(r.seed) for r in group if r.ok),
                 "total_frames": " ".join(str(f) for f in sorted({r.total_frames for r in group if r.ok})),
             }
         )
     baselines = {row["task"]: row["mean"] for row in rows if row["method"] == BASELINE}
+    per_step_baselines = {row["task"]: row["reward_per_step_mean"] for row in rows if row["method"] == BASELINE}
     for row in rows:
         row["change_vs_ppo_pct"] = change_percent(row["mean"], baselines.get(row["task"], math.nan))
+        row["reward_per_step_change_vs_ppo_pct"] = change_percent(
+            row["reward_per_step_mean"], per_step_baselines.get(row["task"], math.nan)
+        )
     _add_speed(rows, runs, baselines)
     return rows
 
@@ -207,8 +217,10 @@ def markdown_table(rows: list[dict[str, Any]], columns: list[str] | None = None)
     return "\n".join(lines) + "\n"
 
 
-def paper_table(summary: list[dict[str, Any]]) -> str:
-    """Tables I-II of the paper: tasks as rows, methods as columns, cells "mean ± std (Δ% vs PPO)"."""
+def paper_table(summary: list[dict[str, Any]], metric: str = "", digits: int = 2) -> str:
+    """Tables I-II of the paper: tasks as rows, methods as columns, cells "mean ± std (Δ% vs PPO)" of the
+    summary's ``{metric}mean``, ``{metric}std`` and ``{metric}change_vs_ppo_pct`` (``metric=""``: the final
+    return; ``"reward_per_step_"``: the final reward per step)."""
     tasks = sorted({row["task"] for row in summary})
     methods = sorted({row["method"] for row in summary}, key=method_rank)
     cell = {(row["task"], row["method"]): row for row in summary}
@@ -220,9 +232,10 @@ def paper_table(summary: list[dict[str, Any]]) -> str:
             if row is None or row["seeds_ok"] == 0:
                 entries.append("–")
                 continue
-            text = f"{fmt(row['mean'])} ± {fmt(row['std'])}"
-            if method != BASELINE and math.isfinite(row["change_vs_ppo_pct"]):
-                text += f" ({row['change_vs_ppo_pct']:+.1f} %)"
+            text = f"{fmt(row[metric + 'mean'], digits)} ± {fmt(row[metric + 'std'], digits)}"
+            change = row[metric + "change_vs_ppo_pct"]
+            if method != BASELINE and math.isfinite(change):
+                text += f" ({change:+.1f} %)"
             if row["seeds_not_ok"]:
                 text += f" [{row['seeds_ok']} seeds]"
             entries.append(text)
