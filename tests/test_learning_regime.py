@@ -143,3 +143,34 @@ def test_cassie_preset_carries_legged_gyms_ppo_numbers():
     assert (cfg.ppo.gamma, cfg.ppo.lmbda, cfg.trainer.max_grad_norm) == (0.99, 0.95, 1.0)
     assert list(cfg.model.hidden_sizes) == [512, 256, 128] and cfg.model.activation == "elu"
     assert cfg.ppo.value_norm == "running"  # ours: one normalised head per component (K = 10 heads)
+
+
+def test_critic_loss_is_the_squared_error_averaged_over_batch_and_heads():
+    """Oracle: the elementwise mean of (v - G)^2 over [B, K]; the config documents this reduction."""
+    from tensordict.nn import NormalParamExtractor
+    from torchrl.modules import ProbabilisticActor, TanhNormal
+
+    from torchrl_ahrs.training.loss import HybridClipPPOLoss
+
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Linear(3, 4), NormalParamExtractor())
+    actor = ProbabilisticActor(
+        TensorDictModule(net, ["observation"], ["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        distribution_class=TanhNormal,
+    )
+    critic = TensorDictModule(torch.nn.Linear(3, 2), ["observation"], ["state_value"])
+    loss = HybridClipPPOLoss(actor, critic, components=["a", "b"], critic_coeff=1.0, loss_critic_type="l2")
+    batch = TensorDict(
+        {
+            "observation": torch.randn(16, 3),
+            "action": torch.rand(16, 2) * 1.8 - 0.9,
+            "action_log_prob": torch.zeros(16),
+            "advantage": torch.randn(16, 1),
+            "value_target": torch.randn(16, 2) * 3,
+        },
+        [16],
+    )
+    with torch.no_grad():
+        squared_error = (critic(batch.clone())["state_value"] - batch["value_target"]).pow(2)  # [B, K]
+    assert loss(batch)["loss_critic"].item() == pytest.approx(squared_error.mean().item(), rel=1e-5)
