@@ -72,8 +72,9 @@ def load_run(path: Path) -> Run:
     for group in ("return", "weight", "share"):
         for csv_path in sorted((scalars / group).glob("*.csv")):
             run.curves[f"{group}/{csv_path.stem}"] = read_scalar(csv_path)
-    if (scalars / "reward" / "total.csv").is_file():  # the native reward per step over every frame of each batch
-        run.curves["reward/total"] = read_scalar(scalars / "reward" / "total.csv")
+    reward_per_step = scalars / "reward" / "total.csv"  # the native reward per step over every frame of each batch
+    if reward_per_step.is_file():
+        run.curves["reward/total"] = read_scalar(reward_per_step)
     logged = [name.split("/", 1)[1] for name in run.curves if name.startswith("return/")]
     task_order = list(config.get("task", {}).get("components") or [])  # the task's K axis order first
     run.components = [c for c in task_order if c in logged] + [c for c in logged if c not in task_order]

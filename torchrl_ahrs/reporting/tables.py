@@ -61,14 +61,13 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 "total_frames": " ".join(str(f) for f in sorted({r.total_frames for r in group if r.ok})),
             }
         )
-    baselines = {row["task"]: row["mean"] for row in rows if row["method"] == BASELINE}
-    per_step_baselines = {row["task"]: row["reward_per_step_mean"] for row in rows if row["method"] == BASELINE}
-    for row in rows:
-        row["change_vs_ppo_pct"] = change_percent(row["mean"], baselines.get(row["task"], math.nan))
-        row["reward_per_step_change_vs_ppo_pct"] = change_percent(
-            row["reward_per_step_mean"], per_step_baselines.get(row["task"], math.nan)
-        )
-    _add_speed(rows, runs, baselines)
+    for metric in ("", "reward_per_step_"):  # the final return, the final reward per step
+        baselines = {row["task"]: row[metric + "mean"] for row in rows if row["method"] == BASELINE}
+        for row in rows:
+            row[metric + "change_vs_ppo_pct"] = change_percent(
+                row[metric + "mean"], baselines.get(row["task"], math.nan)
+            )
+    _add_speed(rows, runs, {row["task"]: row["mean"] for row in rows if row["method"] == BASELINE})
     return rows
 
 
