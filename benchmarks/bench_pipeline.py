@@ -119,19 +119,7 @@ def rates(stamps: list[tuple[float, float]], frames_per_batch: int, warmup: int)
 
 
 def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[float, float]:
-    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.app.iteration.train`` on task=ant_v5 after ``args.warmup`` batches.
-
-    The only instrumentation is a :class:`TimedCollector` around the collector ``train`` builds.
-    """
-    import torchrl_ahrs.app.iteration as training
-
-    timed: list[TimedCollector] = []
-    build_collector = training.build_collector
-
-    def make_timed_collector(*a, **kw):
-        timed.append(TimedCollector(build_collector(*a, **kw)))
-        return timed[-1]
-
+    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.app.iteration.train`` on task=ant_v5 after ``args.warmup`` batches."""
     overrides = [
         "task=ant_v5",
         f"method={method}",
@@ -148,13 +136,31 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
     ]
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
+    return rates(timed_train(cfg), args.num_envs * args.rollout_steps, args.warmup)
+
+
+def timed_train(cfg) -> list[tuple[float, float]]:
+    """``(wall, cpu)`` at each batch :func:`torchrl_ahrs.app.iteration.train` collects on ``cfg`` (in a scratch
+    run directory), but the last: its collection carries the collector's teardown.
+
+    The only instrumentation is a :class:`TimedCollector` around the collector ``train`` builds.
+    """
+    import torchrl_ahrs.app.iteration as training
+
+    timed: list[TimedCollector] = []
+    build_collector = training.build_collector
+
+    def make_timed_collector(*a, **kw):
+        timed.append(TimedCollector(build_collector(*a, **kw)))
+        return timed[-1]
+
     training.build_collector = make_timed_collector
     try:
         with tempfile.TemporaryDirectory() as run_dir:
             training.train(cfg, Path(run_dir))
     finally:
         training.build_collector = build_collector
-    return rates(timed[0].stamps[:-1], args.num_envs * args.rollout_steps, args.warmup)
+    return timed[0].stamps[:-1]
 
 
 # --- TorchRL reference ---------------------------------------------------------------------------

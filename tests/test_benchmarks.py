@@ -69,6 +69,24 @@ def test_bench_pipeline_runs_ours_and_the_reference(monkeypatch, capsys):
     assert "ratio ours/reference" in out
 
 
+def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, capsys):
+    argv = ["--task", "ant_v5", "--batches", "1", "--warmup", "1", "--repeats", "1", "trainer.num_envs=2"]
+    argv += [
+        "trainer.frames_per_batch=16",
+        "trainer.mini_batch_size=8",
+        "trainer.num_epochs=1",
+        "model.hidden_sizes=[8]",
+    ]
+    out = run_script("bench_floor.py", argv, monkeypatch, capsys)
+    ms = {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
+    parts = ["collection (Collector, policy acting)", "advantages (x 1 epochs)", "loss steps (x 2)"]
+    # the rows add up: floor = physics + loss steps, end to end = collection + advantages + loss steps + rest
+    assert ms["floor = physics + loss steps"] == pytest.approx(ms["physics (random actions)"] + ms[parts[2]], abs=0.2)
+    total = sum(ms[name] for name in parts) + ms["rest (hooks, minibatches, logging)"]
+    assert ms["end to end (train)"] == pytest.approx(total, abs=0.3)
+    assert all(value > 0 for name, value in ms.items() if not name.startswith("rest"))
+
+
 def test_bench_env_throughput_runs(monkeypatch, capsys):
     argv = ["--num-envs", "2", "--steps", "4", "--threads", "1", "--rounds", "1", "--tasks", "ant"]
     out = run_script("bench_env_throughput.py", argv, monkeypatch, capsys)
