@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+from tensordict.nn import TensorDictModule
 from torch.distributions import Independent, Normal, kl_divergence
 
 from torchrl_ahrs.training.hooks import PPOMinibatches
-from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR, gaussian_kl
+from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
+from torchrl_ahrs.training.loss import HybridClipPPOLoss, gaussian_kl
+from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
 from torchrl_ahrs.training.value_norm import ValueTargetNormalization, denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
 
@@ -28,31 +30,48 @@ def test_gaussian_kl_matches_torch_distributions():
     assert torch.allclose(gaussian_kl(loc0, s0, loc1, s1), expected, atol=1e-5)
 
 
-def _kl_hook(shift: float, target: float = 0.01, lr: float = 1e-3):
-    net = torch.nn.Sequential(torch.nn.Linear(3, 2), AddStateIndependentNormalScale(2, init_value=0.0))
-    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
-    observation = torch.randn(32, 3)
+@pytest.mark.parametrize("distribution", ["tanh_normal", "normal"])
+def test_loss_writes_the_kl_from_the_collecting_to_the_current_policy(distribution):
+    from torchrl.data import Bounded
+
+    torch.manual_seed(0)
+    spec = Bounded(-torch.ones(2), torch.ones(2), (2,))
+    actor = build_actor(RunningNorm(3), 3, spec, [8], distribution=distribution)
+    critic = build_critic(RunningNorm(3), 3, 1, [8])
     with torch.no_grad():
-        loc, scale = net(observation)
-    batch = TensorDict({"observation": observation, "loc": loc + shift, "scale": scale}, [32])
-    return AdaptiveKLLR(optimizer, net, target=target), optimizer, batch
+        batch = actor(TensorDict({"observation": torch.randn(32, 3)}, [32]))
+    current_loc, current_scale = batch["loc"].clone(), batch["scale"].clone()
+    # the collecting policy: mean shifted, spread 1.5x the current one's
+    batch["loc"], batch["scale"] = current_loc + 0.3, current_scale * 1.5
+    batch["advantage"], batch["value_target"] = torch.randn(32, 1), torch.randn(32, 1)
+    loss = HybridClipPPOLoss(actor, critic, functional=False)
+    expected = kl_divergence(
+        Independent(Normal(batch["loc"], batch["scale"]), 1), Independent(Normal(current_loc, current_scale), 1)
+    ).mean()
+    losses = loss(batch)
+    assert losses["kl"].item() == pytest.approx(expected.item(), rel=1e-5)
+    assert not losses["kl"].requires_grad
+    assert torch.equal(batch["loc"], current_loc + 0.3)  # the caller's minibatch keeps the collecting policy's
 
 
 @pytest.mark.parametrize(
-    "shift, expected_lr",
-    [(0.0, 1.5e-3), (0.1, 1e-3), (1.0, 1e-3 / 1.5)],  # KL = 0, 2 * 0.005 (in band), 2 * 0.5 (above 2x)
+    "kl, expected_lr",
+    [(0.0, 1.5e-3), (0.01, 1e-3), (1.0, 1e-3 / 1.5)],  # below target / 2, in the band, above 2 x target
 )
-def test_adaptive_kl_rule(shift, expected_lr):
-    hook, optimizer, batch = _kl_hook(shift)
-    losses = hook(batch, TensorDict({}, []))
-    assert losses["kl"].item() == pytest.approx(2 * shift**2 / 2, rel=1e-4)  # 2 dims of (shift)^2 / 2
+def test_adaptive_kl_rule(kl, expected_lr):
+    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=1e-3)
+    losses = AdaptiveKLLR(optimizer, target=0.01)(TensorDict({}, []), TensorDict({"kl": torch.tensor(kl)}, []))
     assert optimizer.param_groups[0]["lr"] == pytest.approx(expected_lr)
+    assert losses["lr"].item() == pytest.approx(expected_lr)
 
 
-def test_adaptive_kl_respects_bounds():
-    hook, optimizer, batch = _kl_hook(0.0, lr=9e-3)
-    hook(batch, TensorDict({}, []))
+def test_adaptive_kl_respects_bounds_and_needs_the_losss_kl():
+    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=9e-3)
+    hook = AdaptiveKLLR(optimizer, target=0.01)
+    hook(TensorDict({}, []), TensorDict({"kl": torch.tensor(0.0)}, []))
     assert optimizer.param_groups[0]["lr"] == pytest.approx(1e-2)
+    with pytest.raises(KeyError, match="'kl'"):
+        hook(TensorDict({}, []), TensorDict({}, []))
 
 
 def test_value_norm_statistics_per_head_match_numpy():

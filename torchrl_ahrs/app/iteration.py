@@ -142,7 +142,7 @@ def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
         device=parts.get("device", "cpu"),
     ).register(trainer)
     if cfg.ppo.get("kl_target"):  # adaptive KL schedule (training/kl_schedule.py), in place of the linear decay
-        AdaptiveKLLR(parts["optimizer"], networks.actor.module[0].module, target=cfg.ppo.kl_target).register(trainer)
+        AdaptiveKLLR(parts["optimizer"], target=cfg.ppo.kl_target).register(trainer)  # reads the loss's "kl"
     trainer.register_op("post_optim_complete_log", loss_metrics)
     ComponentShareLog(parts["components"], parts["estimator"]).register(trainer)  # share/<c> after the epochs
     # 5. after the update: normalisers absorb the batch, learning rate, policy weights to the collector

@@ -10,9 +10,10 @@ The factors 2, 1/2 and 1.5 are those of rsl_rl's ``PPO.update`` (``schedule="ada
 ``desired_kl=0.01``, lr bounded to [1e-5, 1e-2]) and rl_games' ``AdaptiveScheduler``
 (``kl_threshold``: 0.008 in its ``mujoco/ant_envpool.yaml``, bounds [1e-6, 1e-2]).
 
-The KL is the closed form between the Gaussians *before* the tanh squash: KL is invariant under a
-bijection applied to both distributions, so it equals the KL of the squashed (TanhNormal) policies.
-``mu_old, sigma_old`` are the ``loc``/``scale`` the collector's policy wrote into the batch.
+The KL is the loss's ``"kl"`` output (:class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss`): the closed
+form between the Gaussians *before* the tanh squash, from the ``loc``/``scale`` the collector's policy wrote
+into the batch to those of the loss's own actor pass, as rsl_rl reads it from its loss forward pass (KL is
+invariant under a bijection applied to both distributions, so it equals the KL of the squashed policies).
 """
 
 from __future__ import annotations
@@ -21,20 +22,6 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
-
-
-def gaussian_kl(loc_old: torch.Tensor, scale_old: torch.Tensor, loc_new: torch.Tensor, scale_new: torch.Tensor):
-    """``KL(N(loc_old, scale_old) || N(loc_new, scale_new))`` summed over the last (action) dim: ``[*B, A] -> [*B]``.
-
-    Example:
-        >>> import torch
-        >>> gaussian_kl(torch.zeros(1, 2), torch.ones(1, 2), torch.ones(1, 2), torch.ones(1, 2))
-        tensor([1.])
-    """
-    log_ratio = torch.log(scale_new / scale_old)  # log(sigma_1 / sigma_0)
-    spread = (scale_old**2 + (loc_old - loc_new) ** 2) / (2.0 * scale_new**2)  # (s0^2 + (m0 - m1)^2) / (2 s1^2)
-    return (log_ratio + spread - 0.5).sum(-1)  # KL = sum_a [log(s1/s0) + spread - 1/2]
 
 
 class AdaptiveKLLR:
@@ -42,24 +29,17 @@ class AdaptiveKLLR:
 
     Args:
         optimizer: its every param group gets the new learning rate.
-        policy_net: ``observation [*B, O] -> (loc [*B, A], scale [*B, A])``, the actor's Gaussian before
-            its tanh squash (the network whose output the collector stored as ``"loc"``/``"scale"``).
         target: desired KL per minibatch.
         min_lr, max_lr: bounds of the learning rate.
         factor: multiplicative step (1.5 in rsl_rl and rl_games).
+        kl_key: the loss output holding the minibatch's KL (``HybridClipPPOLoss`` writes ``"kl"``).
 
     Example:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> from tensordict.nn import AddStateIndependentNormalScale
-        >>> net = torch.nn.Sequential(torch.nn.Linear(3, 2), AddStateIndependentNormalScale(2, init_value=0.0))
-        >>> opt = torch.optim.Adam(net.parameters(), lr=1e-3)
-        >>> hook = AdaptiveKLLR(opt, net, target=0.01)
-        >>> obs = torch.zeros(5, 3)
-        >>> with torch.no_grad():
-        ...     loc, scale = net(obs)
-        >>> batch = TensorDict({"observation": obs, "loc": loc, "scale": scale}, [5])
-        >>> _ = hook(batch, TensorDict({}, []))  # KL = 0 < target / 2: the rate grows by 1.5
+        >>> opt = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=1e-3)
+        >>> hook = AdaptiveKLLR(opt, target=0.01)
+        >>> _ = hook(TensorDict({}, []), TensorDict({"kl": torch.tensor(0.001)}, []))  # KL < target / 2: x 1.5
         >>> round(opt.param_groups[0]["lr"], 6)
         0.0015
     """
@@ -67,18 +47,17 @@ class AdaptiveKLLR:
     def __init__(
         self,
         optimizer: torch.optim.Optimizer,
-        policy_net: nn.Module,
         target: float = 0.01,
         min_lr: float = 1e-5,
         max_lr: float = 1e-2,
         factor: float = 1.5,
-        observation_key: str = "observation",
+        kl_key: str = "kl",
     ):
         if target <= 0:
             raise ValueError(f"the KL target must be positive, got {target}")
-        self.optimizer, self.policy_net = optimizer, policy_net
+        self.optimizer = optimizer
         self.target, self.min_lr, self.max_lr, self.factor = target, min_lr, max_lr, factor
-        self.observation_key = observation_key
+        self.kl_key = kl_key
         self.last_kl = 0.0
 
     @property
@@ -87,8 +66,9 @@ class AdaptiveKLLR:
 
     @torch.no_grad()
     def __call__(self, sub_batch: TensorDictBase, losses: TensorDictBase) -> TensorDictBase:
-        loc, scale = self.policy_net(sub_batch.get(self.observation_key))
-        kl = gaussian_kl(sub_batch.get("loc"), sub_batch.get("scale"), loc, scale).mean().item()
+        if self.kl_key not in losses.keys():
+            raise KeyError(f"AdaptiveKLLR reads the loss output {self.kl_key!r}, which the loss did not write")
+        kl = losses.get(self.kl_key).item()
         self.last_kl = kl
         lr = self.lr
         if kl > 2.0 * self.target:
@@ -97,7 +77,6 @@ class AdaptiveKLLR:
             lr = min(lr * self.factor, self.max_lr)  # barely moved: larger steps
         for group in self.optimizer.param_groups:
             group["lr"] = lr
-        losses.set("kl", torch.tensor(kl))
         losses.set("lr", torch.tensor(lr))
         return losses
 

@@ -3,14 +3,28 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import NestedKey, TensorDictBase
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.utils import ValueEstimators, default_value_kwargs
 from torchrl.objectives.value import ValueEstimatorBase
 
 from torchrl_ahrs.value.gae import WeightedMultiGAE
+
+
+def gaussian_kl(loc_old: torch.Tensor, scale_old: torch.Tensor, loc_new: torch.Tensor, scale_new: torch.Tensor):
+    """``KL(N(loc_old, scale_old) || N(loc_new, scale_new))`` summed over the last (action) dim: ``[*B, A] -> [*B]``.
+
+    Example:
+        >>> import torch
+        >>> gaussian_kl(torch.zeros(1, 2), torch.ones(1, 2), torch.ones(1, 2), torch.ones(1, 2))
+        tensor([1.])
+    """
+    log_ratio = torch.log(scale_new / scale_old)  # log(sigma_1 / sigma_0)
+    spread = (scale_old**2 + (loc_old - loc_new) ** 2) / (2.0 * scale_new**2)  # (s0^2 + (m0 - m1)^2) / (2 s1^2)
+    return (log_ratio + spread - 0.5).sum(-1)  # KL = sum_a [log(s1/s0) + spread - 1/2]
 
 
 class HybridClipPPOLoss(ClipPPOLoss):
@@ -26,6 +40,12 @@ class HybridClipPPOLoss(ClipPPOLoss):
     ``WeightedMultiGAE`` built on the loss's critic by ``make_value_estimator()`` (TorchRL's GAE defaults
     ``gamma=0.99, lmbda=0.95`` unless given). ``set_keys(reward=...)`` names the reward *tree*
     (``"reward"`` by default), whose leaves ``("next", "reward", c)`` are the components.
+
+    Besides ``ClipPPOLoss``'s outputs it writes ``"kl"``: the closed-form KL from the collecting policy's
+    Gaussian (the ``loc`` / ``scale`` ``[*B, A]`` stored in the batch, keys set with ``set_keys(loc=, scale=)``)
+    to the current one, before any tanh squash (KL is invariant under a bijection of both), averaged over the
+    minibatch and detached. rsl_rl's adaptive learning rate reads this from its loss forward pass, and so does
+    :class:`~torchrl_ahrs.training.kl_schedule.AdaptiveKLLR`: no second actor pass per minibatch.
 
     Args:
         actor_network, critic_network: as for ``ClipPPOLoss``; the critic writes ``[*B, K]`` values.
@@ -60,6 +80,17 @@ class HybridClipPPOLoss(ClipPPOLoss):
         ValueError: the advantage has shape (4, 2) ...
     """
 
+    @dataclass
+    class _AcceptedKeys(ClipPPOLoss._AcceptedKeys):
+        """``ClipPPOLoss``'s keys, plus where the actor writes its Gaussian's parameters: the batch holds the
+        collecting policy's there, and the loss's actor pass writes the current policy's."""
+
+        loc: NestedKey = "loc"
+        scale: NestedKey = "scale"
+
+    default_keys = _AcceptedKeys
+    tensor_keys: _AcceptedKeys
+
     def __init__(
         self,
         actor_network,
@@ -72,6 +103,7 @@ class HybridClipPPOLoss(ClipPPOLoss):
         super().__init__(actor_network, critic_network, **kwargs)
         self.components = list(components) if components is not None else None
         self._initial_weights = weights
+        self._kl: torch.Tensor | None = None  # of the current forward pass (see _log_weight)
 
     @staticmethod
     def check_advantage(tensordict: TensorDictBase, key) -> None:
@@ -123,6 +155,24 @@ class HybridClipPPOLoss(ClipPPOLoss):
         self.value_type = WeightedMultiGAE
         return self
 
+    def _log_weight(self, tensordict: TensorDictBase, adv_shape: torch.Size):
+        """``ClipPPOLoss._log_weight``, keeping the KL between the collecting and the current policy.
+
+        ``tensordict`` is ``forward``'s shallow copy of the minibatch: the actor pass inside overwrites its
+        ``loc`` / ``scale`` with the current policy's, so the collecting policy's are read first."""
+        keys = self.tensor_keys
+        loc_old, scale_old = tensordict.get(keys.loc, None), tensordict.get(keys.scale, None)
+        weights = super()._log_weight(tensordict, adv_shape)
+        self._kl = None
+        if loc_old is not None and scale_old is not None:
+            with torch.no_grad():
+                loc_new, scale_new = tensordict.get(keys.loc), tensordict.get(keys.scale)
+                self._kl = gaussian_kl(loc_old, scale_old, loc_new, scale_new).mean()
+        return weights
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         self.check_advantage(tensordict, self.tensor_keys.advantage)
-        return super().forward(tensordict)
+        losses = super().forward(tensordict)
+        if self._kl is not None:
+            losses.set("kl", self._kl)
+        return losses
