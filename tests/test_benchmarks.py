@@ -127,6 +127,11 @@ def test_record_learning_run_writes_curve_evaluation_and_config(tmp_path, monkey
     assert rows[1:] == ["2048,-5.0,0.1,,", "4096,,0.2,,", "6144,12.5,0.3,,"]
     assert (out / "evaluation.json").read_text() == '{"return": 1}'
     assert "wall 1 s" in (out / "timing.txt").read_text()
+    assert not (out / "checkpoint.pt").exists()
+    (run / "checkpoint.pt").write_bytes(b"state")
+    walk = record_learning_run.record(run, "demo", out=tmp_path / "walk", checkpoint=True)
+    assert walk == tmp_path / "walk" and (walk / "checkpoint.pt").read_bytes() == b"state"
+    assert (walk / "curve.csv").read_text() == (out / "curve.csv").read_text()
 
 
 def test_bench_mjx_runs(monkeypatch, capsys):
