@@ -44,7 +44,8 @@ def test_loss_writes_the_kl_from_the_collecting_to_the_current_policy(distributi
     # the collecting policy: mean shifted, spread 1.5x the current one's
     batch["loc"], batch["scale"] = current_loc + 0.3, current_scale * 1.5
     batch["advantage"], batch["value_target"] = torch.randn(32, 1), torch.randn(32, 1)
-    loss = HybridClipPPOLoss(actor, critic, functional=False)
+    assert "kl" not in HybridClipPPOLoss(actor, critic, functional=False)(batch).keys()  # only when asked
+    loss = HybridClipPPOLoss(actor, critic, functional=False, kl=True)
     expected = kl_divergence(
         Independent(Normal(batch["loc"], batch["scale"]), 1), Independent(Normal(current_loc, current_scale), 1)
     ).mean()

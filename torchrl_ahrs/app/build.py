@@ -184,6 +184,7 @@ def build_estimator_and_loss(
         loss_critic_type="l2",
         normalize_advantage=ppo.normalize_advantage,
         clip_value=ppo.get("clip_value"),  # in normalised units when value_norm is on
+        kl=ppo.get("kl_target") is not None,  # the adaptive-KL rule reads the loss's "kl"
         # the modules are called as they are: the functional parameter swap (to_module per call) cost ~1 ms
         # per minibatch, a third of a small-minibatch loss step, and nothing here needs functional calls
         functional=False,

@@ -10,9 +10,9 @@ The factors 2, 1/2 and 1.5 are those of rsl_rl's ``PPO.update`` (``schedule="ada
 ``desired_kl=0.01``, lr bounded to [1e-5, 1e-2]) and rl_games' ``AdaptiveScheduler``
 (``kl_threshold``: 0.008 in its ``mujoco/ant_envpool.yaml``, bounds [1e-6, 1e-2]).
 
-The KL is the loss's ``"kl"`` output (:class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss`): the closed
-form between the Gaussians *before* the tanh squash, from the ``loc``/``scale`` the collector's policy wrote
-into the batch to those of the loss's own actor pass, as rsl_rl reads it from its loss forward pass (KL is
+The KL is the ``"kl"`` output of :class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss` built with ``kl=True``:
+the closed form between the Gaussians *before* the tanh squash, from the ``loc``/``scale`` the collector's policy
+wrote into the batch to those of the loss's own actor pass, as rsl_rl reads it from its loss forward pass (KL is
 invariant under a bijection applied to both distributions, so it equals the KL of the squashed policies).
 """
 
