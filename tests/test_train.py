@@ -78,7 +78,6 @@ def test_ppo_is_the_same_loop_with_one_head_on_total(tmp_path):
         ("method.components=[distance,speed]", "does not have"),
         ("trainer.collector=threads", "trainer.collector must be"),
         ("ppo.value_norm=batch", "ppo.value_norm must be running, popart or null"),
-        ("ppo.component_scale=value_norm", "ppo.component_scale=value_norm divides .* set ppo.value_norm=running"),
         ("ppo.kl_target=0", "ppo.kl_target must be a positive number or null"),
         ("ppo.clip_value=-1", "ppo.clip_value must be a positive number or null"),
         ("trainer.device=gpu", "trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'"),
@@ -215,3 +214,9 @@ def test_unknown_critic_observation_is_named(tmp_path):
     cfg = make_cfg("task=point_reach", "+task.critic_observation=x_ray", "trainer.total_frames=1024", *FAST)
     with pytest.raises(ConfigError, match="x_ray"):
         train(cfg, tmp_path)
+
+
+def test_value_norm_scale_needs_a_value_normaliser():
+    cfg = make_cfg("task=point_reach", "method=hdppo", "ppo.component_scale=value_norm", "ppo.value_norm=null")
+    with pytest.raises(ConfigError, match="ppo.component_scale=value_norm divides .* set ppo.value_norm=running"):
+        validate_config(cfg)

@@ -35,7 +35,7 @@ def test_softmax_hand_values_scale_free_and_sharper_with_lower_temperature():
 
 
 def test_paper_mapping_adds_the_base_and_clamps():
-    mapping = WeightMapping("paper", 0.5, clamp_min=0.0, clamp_max=2.0)
+    mapping = WeightMapping("plain_sum", 0.5, clamp_min=0.0, clamp_max=2.0)
     assert mapping(torch.tensor([-3.0, 0.25, 1.0, 40.0])).tolist() == [0.0, 0.75, 1.5, 2.0]
     assert mapping.direct(torch.tensor([1.0, 3.0])).tolist() == [1.0, 2.0]  # 0.5 + 2 * [1/4, 3/4]
 
@@ -55,7 +55,7 @@ def test_scheduler_uses_the_configured_mapping():
             self.weights = w.clone()
 
     repo = load_repository()
-    cfg = OmegaConf.create({"scheduler": {"weight_mapping": "paper", "base_weight": 0.5, "clamp": [0.0, 3.0]}})
+    cfg = OmegaConf.create({"scheduler": {"weight_mapping": "plain_sum", "base_weight": 0.5, "clamp": [0.0, 3.0]}})
     estimator = Estimator()
     scheduler = RuleScheduler(
         estimator, ["a", "b"], repo, FixedSelector(repo, "mean_returns_only"), interval=1, mapping=weight_mapping(cfg)

@@ -17,10 +17,12 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from torchrl_ahrs.app.config import ConfigError, load_saved_config, refuse_renamed
 from torchrl_ahrs.app.iteration import train
+from torchrl_ahrs.app.run_dir import RunDirectory
 
 __all__ = ["main", "train"]
 
@@ -38,11 +40,13 @@ def main() -> None:
 @hydra.main(config_path="pkg://torchrl_ahrs.conf", config_name="config", version_base="1.3")
 def hydra_main(cfg: DictConfig) -> None:
     try:
-        if cfg.get("resume"):
-            run_dir = Path(cfg.resume)
-            cfg = load_saved_config(run_dir, HydraConfig.get().overrides.task)
-        else:
-            run_dir = Path(HydraConfig.get().runtime.output_dir)
+        hydra_cfg = HydraConfig.get()
+        run_dir = Path(cfg.resume) if cfg.get("resume") else Path(hydra_cfg.runtime.output_dir)
+        # a sweep job whose directory already holds a run continues it (or, finished, skips it): rerunning
+        # an interrupted sweep command resumes it where it stopped (its job directories are deterministic)
+        in_sweep = hydra_cfg.mode == RunMode.MULTIRUN and RunDirectory(run_dir).checkpoint.is_file()
+        if cfg.get("resume") or in_sweep:
+            cfg = load_saved_config(run_dir, hydra_cfg.overrides.task)
         train(cfg, run_dir)
     except (ConfigError, FileNotFoundError, FloatingPointError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -185,6 +185,10 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     validate_config(cfg)
     run = RunDirectory(run_dir).mkdir()
     resumed = load_checkpoint(run.checkpoint) if cfg.get("resume") else None
+    if resumed is not None and resumed["state"]["collected_frames"] >= cfg.trainer.total_frames:
+        log.info("%s is finished (%d of %d frames); nothing to do", run_dir, resumed["state"]["collected_frames"],
+                 cfg.trainer.total_frames)  # fmt: skip
+        return {}
     if resumed is None:
         save_config(cfg, run.config)
     random.seed(cfg.seed)  # every global generator, so a run does not depend on what its process did before

@@ -61,11 +61,14 @@ class Run:
 
 
 def method_label(config: dict[str, Any]) -> str:
-    """The method's name, plus the LLM backend when an LLM (not the offline stand-in) chose the weights."""
+    """The method's name, plus who chose the weights when the method asks an LLM: ``[bandit]`` where the offline
+    stand-in chose (no LLM was called), else the LLM backend, e.g. ``ahrs_wo_a[openai]``."""
     method = config.get("method", {}) or {}
     llm = (config.get("llm", {}) or {}).get("name", "offline")
     uses_llm = method.get("selector") in ("llm", "direct")
-    return f"{method.get('name', '?')}[{llm}]" if uses_llm and llm != "offline" else str(method.get("name", "?"))
+    if not uses_llm:
+        return str(method.get("name", "?"))
+    return f"{method.get('name', '?')}[{'bandit' if llm == 'offline' else llm}]"
 
 
 def method_rank(method: str) -> tuple[int, str]:

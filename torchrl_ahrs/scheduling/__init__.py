@@ -35,6 +35,7 @@ from torchrl_ahrs.scheduling.selectors import (
     RandomSelector,
     Selector,
 )
+from torchrl_ahrs.scheduling.settings import ScheduleSettings, interval_for
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 __all__ = [
@@ -49,6 +50,8 @@ __all__ = [
     "ReturnStatistics",
     "Rule",
     "RuleRepository",
+    "DEFAULTS",
+    "ScheduleSettings",
     "RuleScheduler",
     "Selector",
     "Summary",
@@ -62,6 +65,7 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+DEFAULTS = ScheduleSettings()
 LLM_SELECTORS = ("llm", "direct")
 
 
@@ -73,8 +77,8 @@ def llm_is_offline(cfg: Any) -> bool:
 def decision_interval(cfg: Any) -> int:
     """Training iterations between decisions: ``scheduler.interval``, or, when it is null,
     ``max(1, iterations // scheduler.decisions)`` with ``iterations = total_frames // frames_per_batch``,
-    so a run of any length makes at least ``decisions`` decisions; 100 when neither the interval nor
-    ``trainer.total_frames`` is given (a plain dict without a run length).
+    so a run of any length makes at least ``decisions`` decisions; the paper's 100 when neither the interval
+    nor ``trainer.total_frames`` is given (a plain dict without a run length).
 
     Example:
         >>> from omegaconf import OmegaConf
@@ -89,18 +93,18 @@ def decision_interval(cfg: Any) -> int:
     total_frames = _select(cfg, "trainer.total_frames")
     if total_frames is None:
         return 100
-    iterations = int(total_frames) // int(_select(cfg, "trainer.frames_per_batch", 1))
-    return max(1, iterations // int(_select(cfg, "scheduler.decisions", 15)))  # I // D
+    batch = int(_select(cfg, "trainer.frames_per_batch", 1))
+    return interval_for(int(total_frames), batch, int(_select(cfg, "scheduler.decisions", DEFAULTS.decisions)))
 
 
 def weight_mapping(cfg: Any) -> WeightMapping:
     """The :class:`WeightMapping` of ``cfg.scheduler`` (``weight_mapping``, ``base_weight``,
     ``temperature``, ``clamp: [min, max]``)."""
-    clamp = _select(cfg, "scheduler.clamp", [0.0, 10.0])
+    clamp = _select(cfg, "scheduler.clamp", list(DEFAULTS.clamp))
     return WeightMapping(
-        str(_select(cfg, "scheduler.weight_mapping", "minshift_sum")),
-        float(_select(cfg, "scheduler.base_weight", 0.5)),
-        temperature=float(_select(cfg, "scheduler.temperature", 1.0)),
+        str(_select(cfg, "scheduler.weight_mapping", DEFAULTS.weight_mapping)),
+        float(_select(cfg, "scheduler.base_weight", DEFAULTS.base_weight)),
+        temperature=float(_select(cfg, "scheduler.temperature", DEFAULTS.temperature)),
         clamp_min=float(clamp[0]),
         clamp_max=float(clamp[1]),
     )
@@ -184,7 +188,7 @@ def build_scheduler(
         repository = load_repository(rules_path, validate=True, num_components=len(components))
     selector, note = build_selector(cfg, repository, list(components), llm_calls_path)
     initial = _select(cfg, "method.initial_weights")
-    base_weight = float(_select(cfg, "scheduler.base_weight", 0.5))
+    base_weight = float(_select(cfg, "scheduler.base_weight", DEFAULTS.base_weight))
     if initial is None:  # the config's documented meaning of null: base_weight for every component
         initial = [base_weight] * len(components)
     scheduler = RuleScheduler(
@@ -194,9 +198,9 @@ def build_scheduler(
         selector,
         interval=decision_interval(cfg),
         base_weight=base_weight,
-        history_length=int(_select(cfg, "scheduler.history_length", 5)),
+        history_length=int(_select(cfg, "scheduler.history_length", DEFAULTS.history_length)),
         initial_weights=list(initial),
-        blocking=bool(_select(cfg, "scheduler.blocking", True)),
+        blocking=bool(_select(cfg, "scheduler.blocking", DEFAULTS.blocking)),
         logger=logger,
         decisions_path=decisions_path,
         note=note,

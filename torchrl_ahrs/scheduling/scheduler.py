@@ -38,6 +38,7 @@ from torchrl_ahrs.rewards.components import EPISODE_REWARD, TOTAL, finished_epis
 from torchrl_ahrs.scheduling.mapping import WeightMapping
 from torchrl_ahrs.scheduling.rules import RuleRepository, load_repository
 from torchrl_ahrs.scheduling.selectors import BanditSelector, Decision, DecisionContext, Selector
+from torchrl_ahrs.scheduling.settings import ScheduleSettings, interval_for
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 log = logging.getLogger(__name__)
@@ -64,8 +65,10 @@ class RuleScheduler(TrainerHookBase):
         repository: the rules a selector may pick (default: the selector's, else the shipped repository).
         selector: decides at every decision point (constant, fixed, random, bandit, llm, direct);
             default a :class:`~torchrl_ahrs.scheduling.BanditSelector` over ``repository``.
-        interval: training iterations between decisions.
-        base_weight: ``w_base`` (used when ``mapping`` is not given: ``minshift_sum`` with this base).
+        interval: training iterations between decisions; ``None`` (the default, as on the command line)
+            derives it when registered on a Trainer: ``decisions`` decisions over the trainer's run.
+        decisions: decisions per run when ``interval`` is ``None``.
+        base_weight: ``w_base`` (used when ``mapping`` is not given: the default mapping with this base).
         history_length: L, earlier summaries shown to rules and selectors.
         initial_weights: weights ``[K]`` installed at construction (default: keep the estimator's).
         blocking: ``False`` runs the selector in a background thread.
@@ -99,17 +102,18 @@ class RuleScheduler(TrainerHookBase):
         components: list[str] | None = None,
         repository: RuleRepository | None = None,
         selector: Selector | None = None,
-        interval: int = 100,
-        base_weight: float = 0.5,
-        history_length: int = 5,
+        interval: int | None = ScheduleSettings.interval,
+        base_weight: float = ScheduleSettings.base_weight,
+        history_length: int = ScheduleSettings.history_length,
         initial_weights: list[float] | torch.Tensor | None = None,
-        blocking: bool = True,
+        blocking: bool = ScheduleSettings.blocking,
         logger: Any = None,
         decisions_path: str | Path | None = None,
         note: str = "",
         mapping: WeightMapping | None = None,
+        decisions: int = ScheduleSettings.decisions,
     ):
-        if interval < 1:
+        if interval is not None and interval < 1:
             raise ValueError(f"interval must be at least 1, got {interval}")
         self.estimator = estimator
         self.components = _components_of(estimator, components)
@@ -118,20 +122,15 @@ class RuleScheduler(TrainerHookBase):
         self.repository = repository
         self.selector = selector if selector is not None else BanditSelector(repository)
         self.episode_reward_key: Any = EPISODE_REWARD
-        self.interval = int(interval)
-        self.mapping = mapping if mapping is not None else WeightMapping("minshift_sum", float(base_weight))
+        self.interval: int | None = None if interval is None else int(interval)
+        self.decisions = int(decisions)
+        self.mapping = mapping if mapping is not None else WeightMapping(base_weight=float(base_weight))
         self.base_weight = self.mapping.base_weight
         self.blocking = blocking
         self.logger = logger
         self.decisions_path = Path(decisions_path) if decisions_path is not None else None
         self.note = note
-        _share_settings(
-            self.selector,
-            components=self.components,
-            base_weight=self.base_weight,
-            interval=self.interval,
-            mapping_text=self.mapping.describe(),
-        )
+        self._share_with_selector()
         self.statistics = ReturnStatistics(len(self.components), history_length)
         self.iteration = 0
         self.frames = 0
@@ -150,6 +149,23 @@ class RuleScheduler(TrainerHookBase):
         if note:
             log.warning("RuleScheduler: %s", note)
 
+    def _share_with_selector(self) -> None:
+        settings: dict[str, Any] = {
+            "components": self.components,
+            "base_weight": self.base_weight,
+            "mapping_text": self.mapping.describe(),
+        }
+        if self.interval is not None:
+            settings["interval"] = self.interval
+        _share_settings(self.selector, **settings)
+
+    def derive_interval(self, total_frames: int, frames_per_batch: int) -> int:
+        """Sets an interval left ``None`` to ``decisions`` decisions over ``total_frames``; returns the interval."""
+        if self.interval is None:
+            self.interval = interval_for(total_frames, frames_per_batch, self.decisions)
+            self._share_with_selector()
+        return self.interval
+
     @property
     def weights(self) -> torch.Tensor:
         """The current weights ``[K]``: a CPU copy of the estimator's, the one place they live (and are
@@ -164,7 +180,16 @@ class RuleScheduler(TrainerHookBase):
 
     # ---------------------------------------------------------------- trainer hooks
     def register(self, trainer, name: str = "rule_scheduler") -> None:
-        """Registers ``observe_batch`` at ``pre_steps_log``, ``step`` at ``post_steps``, and the module."""
+        """Registers ``observe_batch`` at ``pre_steps_log``, ``step`` at ``post_steps``, and the module; an
+        interval left ``None`` is derived from the trainer's ``total_frames`` and its collector's batch size."""
+        if self.interval is None:
+            collector = getattr(trainer, "collector", None)
+            batch = getattr(collector, "requested_frames_per_batch", None) or getattr(
+                collector, "frames_per_batch", None
+            )
+            if not batch or not getattr(trainer, "total_frames", None):
+                raise ValueError("RuleScheduler(interval=None) needs a trainer with total_frames and a collector")
+            self.derive_interval(int(trainer.total_frames), int(batch))
         trainer.register_op("pre_steps_log", self.observe_batch)
         trainer.register_op("post_steps", self.step)
         trainer.register_op("shutdown", self.close)
@@ -192,6 +217,8 @@ class RuleScheduler(TrainerHookBase):
 
     def step(self) -> None:
         """Counts one training iteration; decides every ``interval`` iterations; applies late answers."""
+        if self.interval is None:
+            raise ValueError("RuleScheduler has no interval: pass interval=, call derive_interval(), or register it")
         self.iteration += 1
         self._collect_pending()
         if self.iteration % self.interval == 0:
