@@ -15,7 +15,8 @@ from conftest import make_cfg
 from hydra.utils import get_class
 
 from torchrl_ahrs.app.report import write_report
-from torchrl_ahrs.reporting.stats import bootstrap_ci, change_percent, final_return, interquartile_mean
+from torchrl_ahrs.reporting.intervals import improvement_probability, iqm_interval, mean_interval
+from torchrl_ahrs.reporting.stats import change_percent, final_return
 
 BUDGET = 1000
 
@@ -160,8 +161,14 @@ def test_components_rules_and_llm_summary(report_dir):
 
 def test_statistics_on_hand_checkable_inputs():
     # resampling [0, 0, 3]: the mean is k = number of 3s drawn, P(k=0) = 8/27 > 2.5 %, P(k=3) = 1/27 > 2.5 %
-    assert bootstrap_ci([0.0, 0.0, 3.0]) == (0.0, 3.0)
-    assert interquartile_mean([5.0, 1.0, 4.0, 2.0, 3.0, 100.0, -50.0, 7.0]) == pytest.approx(3.5)  # (2+3+4+5)/4
+    assert mean_interval(np.array([0.0, 0.0, 3.0])) == (1.0, 0.0, 3.0)
+    iqm, low, high = iqm_interval(np.array([5.0, 1.0, 4.0, 2.0, 3.0, 100.0, -50.0, 7.0]))
+    assert iqm == pytest.approx(3.5) and low <= 3.5 <= high  # (2+3+4+5)/4
+    # P(X > Y) by hand: 3 x 3 pairs, X wins 8 and ties 1 (5 vs 5): (8 + 0.5) / 9
+    p, low, high = improvement_probability(np.array([5.0, 6.0, 7.0]), np.array([1.0, 2.0, 5.0]))
+    assert p == pytest.approx(8.5 / 9) and low <= p <= high <= 1.0
+    p, low, high = improvement_probability(np.array([1.0, 2.0]), np.array([1.0, 2.0]))
+    assert p == pytest.approx(0.5)  # an arm against itself: a coin
     assert change_percent(-50.0, -100.0) == pytest.approx(50.0)  # less negative return = better
     assert math.isnan(change_percent(1.0, 0.0))
     assert final_return(np.array([100, 899, 901]), np.array([7.0, 7.0, 3.0]), 1000) == 3.0

@@ -191,6 +191,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         return {}
     if resumed is None:
         save_config(cfg, run.config)
+        # a sweep job restarted in a directory that a run left before its first checkpoint: its rows are stale
+        truncate_metrics(run.metrics, -1)
+        truncate_jsonl(run.decisions, -1)
     random.seed(cfg.seed)  # every global generator, so a run does not depend on what its process did before
     np.random.seed(cfg.seed)
     torch.manual_seed(cfg.seed)

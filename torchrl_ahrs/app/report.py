@@ -32,6 +32,7 @@ from torchrl_ahrs.reporting.records import Run
 from torchrl_ahrs.reporting.stats import FINAL_WINDOW
 from torchrl_ahrs.reporting.tables import (
     component_rows,
+    contrast_rows,
     llm_rows,
     markdown_table,
     paper_table,
@@ -69,6 +70,7 @@ def write_report(sweep_dir: Path | list[Path], out_dir: Path, title: str | None 
         "rules": rule_rows(runs),
         "llm": llm_rows(runs),
         "shares": share_rows(runs),
+        "contrasts": contrast_rows(runs),
     }
     for name, rows in tables.items():
         write_csv(rows, out_dir / f"{name}.csv")
@@ -80,11 +82,12 @@ def write_report(sweep_dir: Path | list[Path], out_dir: Path, title: str | None 
 
 def draw_figures(runs: list[Run], out_dir: Path) -> dict[str, list[Path]]:
     """All PNGs, grouped by kind."""
-    images: dict[str, list[Path]] = {"curves": [], "weights": [], "shares": [], "components": []}
+    images: dict[str, list[Path]] = {"curves": [], "profiles": [], "weights": [], "shares": [], "components": []}
     for task in sorted({run.task for run in runs}):
         task_runs = [run for run in runs if run.task == task]
         for kind, draw in (
             ("curves", figures.learning_curves),
+            ("profiles", figures.performance_profile),
             ("weights", figures.weight_timelines),
             ("shares", figures.share_timelines),
             ("components", figures.component_returns),
@@ -93,6 +96,25 @@ def draw_figures(runs: list[Run], out_dir: Path) -> dict[str, list[Path]]:
             if path is not None:
                 images[kind].append(path)
     return images
+
+
+def who_chose(runs: list[Run]) -> str:
+    """One paragraph saying who chose the weights: an arm labelled ``[bandit]`` had its LLM selector replaced by
+    the offline bandit (no LLM was called); the rules are hand-written readings of the paper's."""
+    stand_ins = sorted({run.method for run in runs if run.method.endswith("[bandit]")})
+    llm_arms = sorted({run.method for run in runs if "[" in run.method and not run.method.endswith("[bandit]")})
+    text = "**Who chose the weights.** "
+    if stand_ins:
+        text += (
+            f"In {', '.join(stand_ins)} the discounted-UCB bandit chose among the rules: no LLM was reachable, so no "
+            "LLM made any decision in these runs. "
+        )
+    if llm_arms:
+        text += f"In {', '.join(llm_arms)} an LLM chose (the backend is in brackets). "
+    return text + (
+        "The rules are hand-written (scheduling/default_rules.py: rules 1-6 are readings of the paper's, 7-8 ours); "
+        "an auxiliary reward, where an arm has one, is the shipped hand-written one unless `aux.path` names another.\n"
+    )
 
 
 def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, list[Path]], title: str) -> str:
@@ -105,6 +127,7 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
         f"# Sweep report: {title}\n",
         f"{len(tables['runs'])} runs ({ok_count} ok, {len(not_ok)} not ok); frame budget per run "
         f"{', '.join(f'{b:,}' for b in budgets)}; llm backend(s): {', '.join(llms)}.\n",
+        who_chose(runs),
         f"**Final return** of a run = mean of its `return/total` rows (each the mean native return of the "
         f"episodes finished in one iteration) logged after {100 * (1 - FINAL_WINDOW):.0f} % of the frame "
         "budget. Cells: mean ± sample std (ddof = 1) over the finished seeds, and the change of the mean "
@@ -126,14 +149,40 @@ def render_markdown(runs: list[Run], tables: dict[str, Any], images: dict[str, l
                 "method",
                 "seeds_ok",
                 "seeds_not_ok",
+                "iqm",
+                "iqm_ci95_low",
+                "iqm_ci95_high",
                 "mean",
-                "std",
                 "ci95_low",
                 "ci95_high",
-                "iqm",
+                "std",
                 "change_vs_ppo_pct",
             ],
         ),
+        "\n## Contrasts: probability of improvement\n",
+        "P(X > Y): the probability that a run of X ends above a run of Y (ties count half; rliable's probability of "
+        "improvement, stratified-bootstrap 95 % interval). Named contrasts first, then every arm against `ppo` and "
+        "against `mcppo` (the critic alone). Verdict: an effect when the interval excludes 0.5, otherwise no "
+        "measurable difference.\n",
+        markdown_table(
+            tables["contrasts"],
+            [
+                "task",
+                "x",
+                "y",
+                "tests",
+                "seeds_x",
+                "seeds_y",
+                "iqm_x_minus_y",
+                "p_x_better",
+                "p_ci95_low",
+                "p_ci95_high",
+                "verdict",
+            ],
+        )
+        if tables["contrasts"]
+        else "No pair of arms on a common task.\n",
+        *[f"![{p.stem}]({p.name})\n" for p in images["profiles"]],
         "\n## Early-learning speed\n",
         "AUC: the area under a run's `return/total` curve divided by the frames it spans (its average return "
         "over training; higher = learnt sooner and/or better), mean ± std over seeds. Frames to 90 %: first frame "

@@ -12,6 +12,7 @@ matplotlib.use("Agg")  # files only: no display on a server or in CI
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from torchrl_ahrs.reporting.intervals import performance_profiles  # noqa: E402
 from torchrl_ahrs.reporting.records import Run, method_rank  # noqa: E402
 from torchrl_ahrs.reporting.stats import mean_band, mean_std  # noqa: E402
 
@@ -58,6 +59,27 @@ def learning_curves(task: str, runs: list[Run], path: Path, scalar: str = "retur
     axis.set(title=f"{task}: {scalar} (mean ± std over seeds)", xlabel="frames", ylabel="episode return")
     _finish_axis(axis, "small")
     return _save(figure, path, dpi=90)
+
+
+def performance_profile(task: str, runs: list[Run], path: Path) -> Path | None:
+    """rliable's performance profile of the final return: the fraction of an arm's runs scoring above tau, with
+    its 95 % band, for tau across the observed range (one line per arm)."""
+    finals = {m: np.array([r.final_return for r in g if r.ok]) for m, g in _by_method(runs).items()}
+    finals = {m: v[np.isfinite(v)] for m, v in finals.items() if np.isfinite(v).any()}
+    if not finals:
+        return None
+    pooled = np.concatenate(list(finals.values()))
+    taus = np.linspace(pooled.min(), pooled.max(), 101)
+    profiles, bands = performance_profiles(finals, taus)
+    figure, axis = plt.subplots(figsize=(6, 4))
+    for method, profile in profiles.items():
+        line = axis.plot(taus, profile, label=method)[0]
+        axis.fill_between(taus, bands[method][0], bands[method][1], color=line.get_color(), alpha=0.15)
+    axis.set_xlabel("final return tau")
+    axis.set_ylabel("fraction of runs with final return > tau")
+    axis.set_title(f"{task}: performance profiles")
+    _finish_axis(axis, "small")
+    return _save(figure, path, 120)
 
 
 def weight_timelines(task: str, runs: list[Run], path: Path, kind: str = "weight") -> Path | None:

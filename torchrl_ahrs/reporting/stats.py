@@ -1,6 +1,7 @@
-"""Statistics over seeds: final return of one run, mean ± std, bootstrap CI, IQM, change against PPO.
+"""Statistics of one run's curve (final return, AUC, frames to a threshold) and plain mean ± std over seeds.
 
-Pure functions on 1-D arrays; nothing here reads files. "Final return" of a run is defined once, in
+Intervals, IQMs and probabilities of improvement come from rliable (:mod:`.intervals`). Pure functions on
+1-D arrays; nothing here reads files. "Final return" of a run is defined once, in
 :func:`final_return`, and used by every table and test.
 """
 
@@ -12,7 +13,6 @@ from collections.abc import Sequence
 import numpy as np
 
 FINAL_WINDOW = 0.1  # the last 10 % of the frame budget
-BOOTSTRAP_RESAMPLES = 10_000
 
 
 def final_window_mask(steps: np.ndarray, total_frames: float, window: float = FINAL_WINDOW) -> np.ndarray:
@@ -64,46 +64,6 @@ def mean_std(values: Sequence[float]) -> tuple[float, float]:
         return math.nan, math.nan
     std = float(np.std(x, ddof=1)) if x.size > 1 else math.nan  # sqrt(Σ (x - x̄)² / (n - 1))
     return float(np.mean(x)), std
-
-
-def bootstrap_ci(
-    values: Sequence[float], confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = 0
-) -> tuple[float, float]:
-    """Percentile-bootstrap confidence interval of the mean over seeds.
-
-    ``resamples`` resamples of the n values with replacement (fixed ``seed``, so reports are reproducible);
-    the interval is the (1 - confidence) / 2 and (1 + confidence) / 2 quantiles of the resampled means.
-    With 3-5 seeds the interval is wide and optimistic (it never leaves [min, max]); read it as a
-    spread, not as a significance test.
-
-    Example:
-        >>> bootstrap_ci([2.0, 2.0, 2.0])
-        (2.0, 2.0)
-    """
-    x = np.asarray(values, dtype=float)
-    if x.size == 0:
-        return math.nan, math.nan
-    rng = np.random.default_rng(seed)
-    picks = rng.integers(0, x.size, size=(resamples, x.size))
-    means = x[picks].mean(axis=1)  # x̄*_b = (1/n) Σ_i x_{I_bi}, I_bi ~ U{1..n}
-    tail = (1.0 - confidence) / 2.0
-    low, high = np.quantile(means, [tail, 1.0 - tail], method="inverted_cdf")
-    return float(low), float(high)
-
-
-def interquartile_mean(values: Sequence[float]) -> float:
-    """Mean of the middle half: sort, drop floor(n / 4) values at each end, average the rest
-    (``scipy.stats.trim_mean(x, 0.25)``). Equals the mean for n < 4.
-
-    Example:
-        >>> interquartile_mean([1.0, 2.0, 3.0, 100.0])
-        2.5
-    """
-    x = np.sort(np.asarray(values, dtype=float))
-    if x.size == 0:
-        return math.nan
-    cut = x.size // 4  # floor(0.25 n) from each end
-    return float(np.mean(x[cut : x.size - cut]))
 
 
 def change_percent(value: float, baseline: float) -> float:

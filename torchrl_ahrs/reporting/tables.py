@@ -8,12 +8,11 @@ from typing import Any
 
 import numpy as np
 
+from torchrl_ahrs.reporting.intervals import improvement_probability, iqm_interval, mean_interval
 from torchrl_ahrs.reporting.records import Run, method_rank
 from torchrl_ahrs.reporting.stats import (
-    bootstrap_ci,
     change_percent,
     frames_to_threshold,
-    interquartile_mean,
     mean_std,
     movement_and_noise,
     normalised_auc,
@@ -22,6 +21,14 @@ from torchrl_ahrs.reporting.stats import (
 SPEED_FRACTION = 0.9  # "frames to 90 % of PPO's plateau"
 
 BASELINE = "ppo"
+CRITIC_CONTROL = "mcppo"  # K heads, equal weights, no schedule: the critic alone
+# the contrasts named before the experiment ran (benchmarks/RESULTS.md, "Faithful defaults"): (X, Y, what X - Y tests)
+CONTRASTS = (
+    ("mcppo", "ppo", "the critic"),
+    ("hdppo", "mcppo", "a fixed rule"),
+    ("ahrs_wo_a[bandit]", "mcppo", "selection (by the bandit)"),
+    ("ahrs_wo_a[bandit]", "ahrs_r", "informed vs random choice"),
+)
 
 
 def cells(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
@@ -33,8 +40,9 @@ def cells(runs: list[Run]) -> dict[tuple[str, str], list[Run]]:
 
 
 def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
-    """One row per (task, method): final return over the finished seeds (mean, sample std, bootstrap
-    95 % CI of the mean, IQM) and its change against PPO's mean on the same task in % of |PPO|; the same
+    """One row per (task, method): final return over the finished seeds (mean, sample std, the mean's and the
+    IQM's stratified-bootstrap 95 % intervals from rliable) and its change against PPO's mean on the same task
+    in % of |PPO|; the same
     mean, std and change for the final native reward per step (``reward_per_step_*``), which counts every
     frame where a return counts only the episodes that ended."""
     rows: list[dict[str, Any]] = []
@@ -43,7 +51,8 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
         per_step = [r.final.get("reward/total", math.nan) for r in group if r.ok]
         mean, std = mean_std(finals)
         per_step_mean, per_step_std = mean_std(per_step)
-        low, high = bootstrap_ci(finals)
+        _, low, high = mean_interval(finals)
+        iqm, iqm_low, iqm_high = iqm_interval(finals)
         rows.append(
             {
                 "task": task,
@@ -54,7 +63,9 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 "std": std,
                 "ci95_low": low,
                 "ci95_high": high,
-                "iqm": interquartile_mean(finals),
+                "iqm": iqm,
+                "iqm_ci95_low": iqm_low,
+                "iqm_ci95_high": iqm_high,
                 "reward_per_step_mean": per_step_mean,
                 "reward_per_step_std": per_step_std,
                 "seeds": " ".join(str(r.seed) for r in group if r.ok),
@@ -68,6 +79,43 @@ def summary_rows(runs: list[Run]) -> list[dict[str, Any]]:
                 row[metric + "mean"], baselines.get(row["task"], math.nan)
             )
     _add_speed(rows, runs, {row["task"]: row["mean"] for row in rows if row["method"] == BASELINE})
+    return rows
+
+
+def contrast_rows(runs: list[Run]) -> list[dict[str, Any]]:
+    """Per task: the named :data:`CONTRASTS`, then every arm against PPO and against the critic-alone control:
+    the probability of improvement ``P(X > Y)`` of the final return with its 95 % interval (rliable), the IQM
+    difference, and the verdict: an effect when the interval excludes 0.5, else no measurable difference."""
+    rows: list[dict[str, Any]] = []
+    finals: dict[tuple[str, str], list[float]] = defaultdict(list)
+    for run in runs:
+        if run.ok:
+            finals[(run.task, run.method)].append(run.final_return)
+    for task in sorted({task for task, _ in finals}):
+        methods = sorted({m for t, m in finals if t == task}, key=method_rank)
+        pairs = [(x, y, why) for x, y, why in CONTRASTS if x in methods and y in methods]
+        pairs += [(m, control, f"{m} against {control}") for control in (BASELINE, CRITIC_CONTROL)
+                  for m in methods if m != control and control in methods and (m, control) not in
+                  {(x, y) for x, y, _ in pairs}]  # fmt: skip
+        for x, y, why in pairs:
+            p, low, high = improvement_probability(np.array(finals[(task, x)]), np.array(finals[(task, y)]))
+            verdict = "X better" if low > 0.5 else "Y better" if high < 0.5 else "no measurable difference"
+            rows.append(
+                {
+                    "task": task,
+                    "x": x,
+                    "y": y,
+                    "tests": why,
+                    "seeds_x": len(finals[(task, x)]),
+                    "seeds_y": len(finals[(task, y)]),
+                    "iqm_x_minus_y": iqm_interval(np.array(finals[(task, x)]))[0]
+                    - iqm_interval(np.array(finals[(task, y)]))[0],
+                    "p_x_better": p,
+                    "p_ci95_low": low,
+                    "p_ci95_high": high,
+                    "verdict": verdict if math.isfinite(p) else "",
+                }
+            )
     return rows
 
 
