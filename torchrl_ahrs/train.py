@@ -44,7 +44,10 @@ def hydra_main(cfg: DictConfig) -> None:
         run_dir = Path(cfg.resume) if cfg.get("resume") else Path(hydra_cfg.runtime.output_dir)
         # a sweep job whose directory already holds a run continues it (or, finished, skips it): rerunning
         # an interrupted sweep command resumes it where it stopped (its job directories are deterministic)
-        in_sweep = hydra_cfg.mode == RunMode.MULTIRUN and RunDirectory(run_dir).checkpoint.is_file()
+        directory = RunDirectory(run_dir)
+        in_sweep = hydra_cfg.mode == RunMode.MULTIRUN and (
+            directory.checkpoint.is_file() or directory.finished.is_file()
+        )
         if cfg.get("resume") or in_sweep:
             cfg = load_saved_config(run_dir, hydra_cfg.overrides.task)
         train(cfg, run_dir)

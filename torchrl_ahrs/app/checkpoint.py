@@ -44,6 +44,8 @@ from typing import Any
 import torch
 from torchrl.trainers import Trainer, TrainerHookBase
 
+from torchrl_ahrs.app.run_dir import RunDirectory
+
 
 def save_atomic(state: dict[str, Any], path: Path) -> None:
     """``torch.save`` to ``path.tmp`` then rename: readers see the old file or the new one, never half."""
@@ -58,6 +60,24 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}; cannot resume")
     return torch.load(path, weights_only=False)
+
+
+def mark_finished(run_dir: Path, collected_frames: int, total_frames: int) -> Path:
+    """Writes the run directory's ``finished.json`` (see :mod:`torchrl_ahrs.app.run_dir`); returns its path."""
+    path = RunDirectory(run_dir).finished
+    path.write_text(json.dumps({"collected_frames": int(collected_frames), "total_frames": int(total_frames)}) + "\n")
+    return path
+
+
+def collected_frames(run_dir: Path) -> int | None:
+    """Frames a run has collected: from ``finished.json`` when it finished, else from its checkpoint; None
+    without either. Raises what ``torch.load`` raises on a torn checkpoint."""
+    directory = RunDirectory(run_dir)
+    if directory.finished.is_file():
+        return int(json.loads(directory.finished.read_text())["collected_frames"])
+    if directory.checkpoint.is_file():
+        return int(load_checkpoint(directory.checkpoint)["state"]["collected_frames"])
+    return None
 
 
 def truncate_metrics(metrics_dir: Path, last_step: int) -> int:

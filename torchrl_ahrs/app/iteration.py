@@ -48,7 +48,14 @@ from torchrl_ahrs.app.build import (
     env_factory,
     resolve_devices,
 )
-from torchrl_ahrs.app.checkpoint import CheckpointHook, load_checkpoint, truncate_jsonl, truncate_metrics
+from torchrl_ahrs.app.checkpoint import (
+    CheckpointHook,
+    collected_frames,
+    load_checkpoint,
+    mark_finished,
+    truncate_jsonl,
+    truncate_metrics,
+)
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import register_video_log
@@ -184,11 +191,11 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     checkpoint) and returns the last logged metrics."""
     validate_config(cfg)
     run = RunDirectory(run_dir).mkdir()
-    resumed = load_checkpoint(run.checkpoint) if cfg.get("resume") else None
-    if resumed is not None and resumed["state"]["collected_frames"] >= cfg.trainer.total_frames:
-        log.info("%s is finished (%d of %d frames); nothing to do", run_dir, resumed["state"]["collected_frames"],
-                 cfg.trainer.total_frames)  # fmt: skip
+    done = collected_frames(run.path) if cfg.get("resume") else None
+    if done is not None and done >= cfg.trainer.total_frames:
+        log.info("%s is finished (%d of %d frames); nothing to do", run_dir, done, cfg.trainer.total_frames)
         return {}
+    resumed = load_checkpoint(run.checkpoint) if cfg.get("resume") else None
     if resumed is None:
         save_config(cfg, run.config)
         # a sweep job restarted in a directory that a run left before its first checkpoint: its rows are stale
@@ -261,6 +268,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
             trainer.train()  # its last iteration writes the final checkpoint
     finally:
         logger.close()  # TensorBoard's writer thread would otherwise still be writing after we return
+    if trainer.collected_frames >= cfg.trainer.total_frames:
+        mark_finished(run.path, trainer.collected_frames, cfg.trainer.total_frames)
     returns_log = trainer._modules["component_returns"]
     log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
     return dict(returns_log.latest)

@@ -9,6 +9,9 @@
       checkpoint.pt              Trainer.state_dict(): everything the next iteration depends on (see
                                  app/checkpoint.py); written atomically every checkpoint.interval iterations
                                  and at the end
+      finished.json              written when the frame budget is reached: {"collected_frames", "total_frames"};
+                                 small and committed with a sweep's results (checkpoints are not), so a rerun sweep
+                                 and the report know a finished run without its checkpoint
       metrics/                   the logger's experiment: scalars/<name>.csv (TorchRL CSVLogger rows
                                  "step,value", step = collected frames) and TensorBoard events
       scheduler_decisions.jsonl  one JSON line per scheduler decision (iteration, frames, rule, weights, ...)
@@ -30,6 +33,7 @@ from pathlib import Path
 
 CONFIG = "config.yaml"
 CHECKPOINT = "checkpoint.pt"
+FINISHED = "finished.json"
 METRICS = "metrics"  # the logger's experiment name
 SCALARS = "scalars"
 DECISIONS = "scheduler_decisions.jsonl"
@@ -58,6 +62,10 @@ class RunDirectory:
     @property
     def checkpoint(self) -> Path:
         return self.path / CHECKPOINT
+
+    @property
+    def finished(self) -> Path:
+        return self.path / FINISHED
 
     @property
     def metrics(self) -> Path:

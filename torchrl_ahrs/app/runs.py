@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 import yaml
 
+from torchrl_ahrs.app.checkpoint import collected_frames
 from torchrl_ahrs.app.run_dir import CONFIG, HYDRA, MULTIRUN, RunDirectory
 from torchrl_ahrs.reporting.records import Run, method_label, method_rank
 from torchrl_ahrs.reporting.stats import final_return, final_window_mask
@@ -85,16 +85,14 @@ def load_run(path: Path) -> Run:
     run.decisions = read_jsonl(directory.decisions)
     run.llm_calls = read_jsonl(directory.llm_calls)
 
-    checkpoint = directory.checkpoint
-    if checkpoint.is_file():
-        try:
-            state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-            run.collected_frames = int(state["state"]["collected_frames"])
-        except Exception as error:  # a torn or foreign file: the run cannot be trusted
-            run.status, run.reason = "incomplete", f"unreadable checkpoint ({type(error).__name__})"
-            return run
-    if not checkpoint.is_file():
-        run.status, run.reason = "incomplete", f"no {checkpoint.name} (crashed, killed or still running)"
+    try:
+        frames = collected_frames(path)  # finished.json, else the checkpoint
+    except Exception as error:  # a torn or foreign checkpoint: the run cannot be trusted
+        run.status, run.reason = "incomplete", f"unreadable checkpoint ({type(error).__name__})"
+        return run
+    run.collected_frames = frames or 0
+    if frames is None:
+        run.status, run.reason = "incomplete", f"no {directory.checkpoint.name} (crashed, killed or still running)"
     elif run.collected_frames < run.total_frames:
         run.status = "incomplete"
         run.reason = f"checkpoint at {run.collected_frames} of {run.total_frames} frames"
@@ -131,9 +129,12 @@ def expected_seeds(sweep_dir: Path) -> list[int] | None:
             spec = str(override).split("=", 1)[1]
     if spec is None:
         return None
+    text = str(spec).replace(" ", "")
     try:
-        return sorted(int(part) for part in str(spec).split(","))
-    except ValueError:
+        if text.startswith("range(") and text.endswith(")"):  # Hydra's range(start,stop[,step]) sweep
+            return list(range(*(int(part) for part in text[6:-1].split(","))))
+        return sorted(int(part) for part in text.split(","))
+    except (TypeError, ValueError):
         return None
 
 
