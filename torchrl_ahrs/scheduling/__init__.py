@@ -181,7 +181,7 @@ def build_scheduler(
     """
     components = _components_of(estimator, components)
     rules_path = _select(cfg, "scheduler.rules")
-    if rules_path is None:  # a shipped repository: the paper's 8 rules, or HD-PPO's rule for hdppo(_a)
+    if rules_path is None:  # a shipped repository: the 8 hand-written rules, or HD-PPO's rule for hdppo(_a)
         shipped = _select(cfg, "method.repository", "hdpg" if _select(cfg, "method.rule") == "hdpg" else "ahrs")
         repository = load_repository(shipped, num_components=len(components))
     else:
