@@ -21,7 +21,9 @@ Example:
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -33,6 +35,14 @@ def _rliable():
     from rliable import library, metrics  # type: ignore[import-untyped]  # imported on use: the report is the only user of rliable
 
     return library, metrics
+
+
+def _quiet(call: Callable[[], Any]) -> Any:
+    """Runs an rliable call without arch's FutureWarning about ``random_state`` (rliable 1.2 passes one; the
+    warning is about arch's next major version, which rliable does not admit)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+        return call()
 
 
 def _interval(
@@ -47,10 +57,10 @@ def _interval(
     if scores.size == 1:  # nothing to resample
         return point, point, point
     library, _ = _rliable()
-    _, intervals = library.get_interval_estimates(
+    _, intervals = _quiet(lambda: library.get_interval_estimates(
         {"x": scores[:, None]}, func, reps=reps, confidence_interval_size=CONFIDENCE,
         random_state=np.random.RandomState(seed),
-    )  # fmt: skip
+    ))  # fmt: skip
     low, high = intervals["x"].reshape(-1)[:2]
     return point, float(low), float(high)
 
@@ -78,10 +88,10 @@ def improvement_probability(
         return math.nan, math.nan, math.nan
     library, metrics = _rliable()
     pair = {"x,y": (x[:, None], y[:, None])}
-    points, intervals = library.get_interval_estimates(
+    points, intervals = _quiet(lambda: library.get_interval_estimates(
         pair, metrics.probability_of_improvement, reps=reps, confidence_interval_size=CONFIDENCE,
         random_state=np.random.RandomState(seed),
-    )  # fmt: skip
+    ))  # fmt: skip
     low, high = intervals["x,y"].reshape(-1)[:2]
     return float(np.asarray(points["x,y"]).reshape(-1)[0]), float(low), float(high)
 
@@ -96,4 +106,4 @@ def performance_profiles(
     arrays = {name: v for name, v in arrays.items() if v.size}
     if not arrays:
         return {}, {}
-    return library.create_performance_profile(arrays, taus, reps=reps)
+    return _quiet(lambda: library.create_performance_profile(arrays, taus, reps=reps))

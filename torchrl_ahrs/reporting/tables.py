@@ -94,9 +94,11 @@ def contrast_rows(runs: list[Run]) -> list[dict[str, Any]]:
     for task in sorted({task for task, _ in finals}):
         methods = sorted({m for t, m in finals if t == task}, key=method_rank)
         pairs = [(x, y, why) for x, y, why in CONTRASTS if x in methods and y in methods]
-        pairs += [(m, control, f"{m} against {control}") for control in (BASELINE, CRITIC_CONTROL)
-                  for m in methods if m != control and control in methods and (m, control) not in
-                  {(x, y) for x, y, _ in pairs}]  # fmt: skip
+        for control in (BASELINE, CRITIC_CONTROL):
+            for method in methods:
+                seen = {frozenset((x, y)) for x, y, _ in pairs}  # a contrast and its mirror are one question
+                if control in methods and method != control and frozenset((method, control)) not in seen:
+                    pairs.append((method, control, f"{method} against {control}"))
         for x, y, why in pairs:
             p, low, high = improvement_probability(np.array(finals[(task, x)]), np.array(finals[(task, y)]))
             verdict = "X better" if low > 0.5 else "Y better" if high < 0.5 else "no measurable difference"
