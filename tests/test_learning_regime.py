@@ -14,8 +14,8 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torch.distributions import Independent, Normal, kl_divergence
 
-from torchrl_ahrs.training.hooks import PPOMinibatches
 from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
+from torchrl_ahrs.training.loop import epoch_minibatches
 from torchrl_ahrs.training.loss import HybridClipPPOLoss, gaussian_kl
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
 from torchrl_ahrs.training.value_norm import ValueTargetNormalization, denormalized_critic, make_value_norm
@@ -102,26 +102,23 @@ def test_denormalized_critic_shares_parameters_and_maps_to_reward_units():
 
 
 def test_value_targets_are_normalised_for_the_loss_only():
+    # as training/loop.py does per epoch: select what the loss reads, normalise the selection, split it
     hook = ValueTargetNormalization(make_value_norm("running", 1))
     batch = TensorDict({"value_target": torch.tensor([[0.0], [4.0]]), "state_value": torch.tensor([[2.0], [2.0]])}, [2])
-    minibatches = PPOMinibatches(
-        lambda td: td, num_minibatches=1, keys=["value_target", "state_value"], post_estimate=hook
-    )
-    minibatches.pre_epoch(batch)
-    served = minibatches.next_minibatch(batch)
-    assert sorted(served["value_target"].squeeze(-1).tolist()) == pytest.approx([-1.0, 1.0], abs=1e-4)
-    assert batch["value_target"].squeeze(-1).tolist() == [0.0, 4.0]  # the collected batch keeps reward units
-    minibatches.pre_epoch(batch)  # second epoch of the same batch: the statistics do not absorb it again
-    assert hook.value_norm.count.item() == 2
+    for epoch in range(2):
+        selected = hook(batch.select("value_target", "state_value"), new_batch=epoch == 0)
+        (served,) = epoch_minibatches(selected, 1, torch.Generator().manual_seed(epoch))
+        assert sorted(served["value_target"].squeeze(-1).tolist()) == pytest.approx([-1.0, 1.0], abs=1e-4)
+        assert batch["value_target"].squeeze(-1).tolist() == [0.0, 4.0]  # the collected batch keeps reward units
+    assert hook.value_norm.count.item() == 2  # the second epoch of the same batch was not absorbed again
 
 
-def test_minibatches_gather_only_the_keys_the_loss_reads():
-    batch = TensorDict({"a": torch.arange(8.0), "b": torch.zeros(8), "next": {"c": torch.ones(8)}}, [8])
-    minibatches = PPOMinibatches(lambda td: td, num_minibatches=2, seed=0, keys=["a"])
-    minibatches.pre_epoch(batch)
-    served = [minibatches.next_minibatch(batch) for _ in range(2)]
-    assert all(set(mb.keys()) == {"a"} for mb in served)
-    assert sorted(torch.cat([mb["a"] for mb in served]).tolist()) == list(range(8))
+def test_each_epoch_serves_every_transition_once_in_a_fresh_order():
+    batch = TensorDict({"a": torch.arange(10.0)}, [10])
+    generator = torch.Generator().manual_seed(0)
+    epochs = [torch.cat([mb["a"] for mb in epoch_minibatches(batch, 3, generator)]).tolist() for _ in range(2)]
+    assert [len(mb) for mb in epoch_minibatches(batch, 3, generator)] == [2, 4, 4]  # torch.chunk's sizes, last first
+    assert all(sorted(order) == list(range(10)) for order in epochs) and epochs[0] != epochs[1]
 
 
 def test_gae_bootstraps_on_truncation_but_not_on_termination():

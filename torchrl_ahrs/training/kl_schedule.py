@@ -1,6 +1,6 @@
 """Adaptive learning rate from the policy's KL divergence (the rule of rsl_rl and rl_games).
 
-After each minibatch's loss, before its optimiser step::
+After each minibatch's loss, before its optimiser step (:func:`torchrl_ahrs.training.loop.learn` calls it)::
 
     KL = E_s[ KL( N(mu_old, sigma_old) || N(mu_new, sigma_new) ) ]      (summed over action dims)
     KL > 2 * target   ->  lr <- max(lr / 1.5, min_lr)
@@ -18,14 +18,15 @@ invariant under a bijection applied to both distributions, so it equals the KL o
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 from tensordict import TensorDictBase
 
 
 class AdaptiveKLLR:
-    """Trainer ``process_loss`` hook: adapts the optimiser's learning rate to keep KL near ``target``.
+    """``(minibatch, losses) -> losses``: adapts the optimiser's learning rate to keep KL near ``target``.
+
+    The rate lives in the optimiser's param groups (and is checkpointed with the optimiser); this rule
+    only changes it.
 
     Args:
         optimizer: its every param group gets the new learning rate.
@@ -58,7 +59,6 @@ class AdaptiveKLLR:
         self.optimizer = optimizer
         self.target, self.min_lr, self.max_lr, self.factor = target, min_lr, max_lr, factor
         self.kl_key = kl_key
-        self.last_kl = 0.0
 
     @property
     def lr(self) -> float:
@@ -69,7 +69,6 @@ class AdaptiveKLLR:
         if self.kl_key not in losses.keys():
             raise KeyError(f"AdaptiveKLLR reads the loss output {self.kl_key!r}, which the loss did not write")
         kl = losses.get(self.kl_key).item()
-        self.last_kl = kl
         lr = self.lr
         if kl > 2.0 * self.target:
             lr = max(lr / self.factor, self.min_lr)  # too far from the collecting policy: smaller steps
@@ -79,14 +78,3 @@ class AdaptiveKLLR:
             group["lr"] = lr
         losses.set("lr", torch.tensor(lr))
         return losses
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"lr": self.lr}
-
-    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        for group in self.optimizer.param_groups:
-            group["lr"] = state_dict["lr"]
-
-    def register(self, trainer, name: str = "adaptive_kl_lr") -> None:
-        trainer.register_op("process_loss", self)
-        trainer.register_module(name, self)
