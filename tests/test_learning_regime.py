@@ -14,11 +14,10 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torch.distributions import Independent, Normal, kl_divergence
 
-from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
-from torchrl_ahrs.training.loop import epoch_minibatches
+from torchrl_ahrs.training.loop import LoopSettings, adaptive_kl_lr, epoch_minibatches
 from torchrl_ahrs.training.loss import HybridClipPPOLoss, gaussian_kl
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
-from torchrl_ahrs.training.value_norm import ValueTargetNormalization, denormalized_critic, make_value_norm
+from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
 
 
@@ -60,19 +59,14 @@ def test_loss_writes_the_kl_from_the_collecting_to_the_current_policy(distributi
     [(0.0, 1.5e-3), (0.01, 1e-3), (1.0, 1e-3 / 1.5)],  # below target / 2, in the band, above 2 x target
 )
 def test_adaptive_kl_rule(kl, expected_lr):
-    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=1e-3)
-    losses = AdaptiveKLLR(optimizer, target=0.01)(TensorDict({}, []), TensorDict({"kl": torch.tensor(kl)}, []))
-    assert optimizer.param_groups[0]["lr"] == pytest.approx(expected_lr)
-    assert losses["lr"].item() == pytest.approx(expected_lr)
+    assert adaptive_kl_lr(1e-3, kl, target=0.01) == pytest.approx(expected_lr)
 
 
-def test_adaptive_kl_respects_bounds_and_needs_the_losss_kl():
-    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=9e-3)
-    hook = AdaptiveKLLR(optimizer, target=0.01)
-    hook(TensorDict({}, []), TensorDict({"kl": torch.tensor(0.0)}, []))
-    assert optimizer.param_groups[0]["lr"] == pytest.approx(1e-2)
-    with pytest.raises(KeyError, match="'kl'"):
-        hook(TensorDict({}, []), TensorDict({}, []))
+def test_adaptive_kl_respects_bounds_and_needs_a_positive_target():
+    assert adaptive_kl_lr(9e-3, 0.0, target=0.01) == pytest.approx(1e-2)
+    assert adaptive_kl_lr(1.2e-5, 1.0, target=0.01) == pytest.approx(1e-5)  # bounded by min_lr
+    with pytest.raises(ValueError, match="KL target must be positive"):
+        LoopSettings(total_frames=64, kl_target=0.0)
 
 
 def test_value_norm_statistics_per_head_match_numpy():
@@ -99,18 +93,6 @@ def test_denormalized_critic_shares_parameters_and_maps_to_reward_units():
     assert torch.allclose(out, raw * torch.tensor([5.0, 100.0]) + torch.tensor([5.0, 200.0]), atol=1e-3)
     assert {id(p) for p in critic.parameters()} == {id(p) for p in net.parameters()}
     assert "module.1.value_norm.mean" in critic.state_dict()  # the statistics travel with the checkpointed critic
-
-
-def test_value_targets_are_normalised_for_the_loss_only():
-    # as training/loop.py does per epoch: select what the loss reads, normalise the selection, split it
-    hook = ValueTargetNormalization(make_value_norm("running", 1))
-    batch = TensorDict({"value_target": torch.tensor([[0.0], [4.0]]), "state_value": torch.tensor([[2.0], [2.0]])}, [2])
-    for epoch in range(2):
-        selected = hook(batch.select("value_target", "state_value"), new_batch=epoch == 0)
-        (served,) = epoch_minibatches(selected, 1, torch.Generator().manual_seed(epoch))
-        assert sorted(served["value_target"].squeeze(-1).tolist()) == pytest.approx([-1.0, 1.0], abs=1e-4)
-        assert batch["value_target"].squeeze(-1).tolist() == [0.0, 4.0]  # the collected batch keeps reward units
-    assert hook.value_norm.count.item() == 2  # the second epoch of the same batch was not absorbed again
 
 
 def test_each_epoch_serves_every_transition_once_in_a_fresh_order():

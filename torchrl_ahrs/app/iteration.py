@@ -39,14 +39,13 @@ from torchrl_ahrs.app.checkpoint import (
     truncate_metrics,
 )
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
+from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import build_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.console import ConsoleProgress
-from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
 from torchrl_ahrs.training.loggers import build_logger
 from torchrl_ahrs.training.loop import LoopSettings, Progress, TrainingRun, learn
-from torchrl_ahrs.training.value_norm import ValueTargetNormalization
 
 log = logging.getLogger("torchrl_ahrs.train")
 
@@ -105,18 +104,17 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
             cfg.trainer.total_frames, components, estimator, scheduler, table_interval, start_frames=done_frames
         )
     video = build_video_log(cfg, networks.actor, make_envs, run.path)
-    kl_target = cfg.ppo.get("kl_target")
     norms = [(networks.actor_norm, "observation")]
     if networks.critic_norm is not networks.actor_norm:  # privileged critic observations have their own statistics
         norms.append((networks.critic_norm, networks.critic_key))
-    value_norm = getattr(estimator, "value_norm", None)
     progress = Progress()
     settings = LoopSettings(
         total_frames=cfg.trainer.total_frames,
         num_epochs=cfg.trainer.num_epochs,
         num_minibatches=num_minibatches(cfg),
         max_grad_norm=cfg.trainer.max_grad_norm,
-        anneal_lr=bool(cfg.trainer.anneal_lr) and not kl_target,  # the adaptive-KL rule replaces the anneal
+        anneal_lr=bool(cfg.trainer.anneal_lr),
+        kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
     )
     # the run's state: one entry per owner (listed in app/checkpoint.py); saved after the iteration's last step
     registry: dict[str, Any] = {
@@ -142,7 +140,12 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if resumed:
         # last, after everything that draws random numbers while being built; from here to the first
         # collection nothing draws, so the resumed run continues the saved one bit for bit
-        load_registry(registry, resumed, run.checkpoint)
+        try:
+            load_registry(registry, resumed, run.checkpoint)
+        except ConfigError:  # a checkpoint of an older layout: nothing was changed, release what was opened
+            collector.shutdown()
+            logger.close()
+            raise
         collector.update_policy_weights_()
         log.info("resuming %s at %d frames", run_dir, done_frames)
         truncate_metrics(run.metrics, done_frames)  # rows and decisions of the iterations lost after the checkpoint
@@ -158,8 +161,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         settings=settings,
         generator=generator,
         observation_norms=norms,
-        value_targets=ValueTargetNormalization(value_norm) if value_norm is not None else None,
-        kl_rule=AdaptiveKLLR(optimizer, target=kl_target) if kl_target else None,
+        value_norm=getattr(estimator, "value_norm", None),
         console=console,
         video=video,
         checkpoint=checkpoint,

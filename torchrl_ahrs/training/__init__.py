@@ -1,6 +1,14 @@
 """PPO pieces: the hybrid loss, the training loop, actor/critic builders, the resumable collector, loggers."""
 
-from torchrl_ahrs.training.loop import FiniteGuard, LoopSettings, TrainingRun, epoch_minibatches, learn
+from torchrl_ahrs.training.loop import (
+    FiniteGuard,
+    LoopSettings,
+    Progress,
+    TrainingRun,
+    adaptive_kl_lr,
+    epoch_minibatches,
+    learn,
+)
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
 
@@ -8,8 +16,10 @@ __all__ = [
     "FiniteGuard",
     "HybridClipPPOLoss",
     "LoopSettings",
+    "Progress",
     "RunningNorm",
     "TrainingRun",
+    "adaptive_kl_lr",
     "build_actor",
     "build_critic",
     "epoch_minibatches",

@@ -5,8 +5,8 @@ In the order it runs (the section comments in :func:`learn` carry these numbers)
     1. collect       the Collector steps N envs x T steps with the current policy              -> batch [N, T]
                      (the env's RewardComponents wrote ("next", "reward", c), c = 1..K); FiniteGuard stops on NaN
     2. returns       reward/<c> (mean per step), return/<c> (episodes that ended), the scheduler's statistics
-    3. PPO epochs    per epoch: advantages (WeightedMultiGAE with the current critic) -> minibatches ->
-                     HybridClipPPOLoss -> KL and learning rate -> Adam step with the gradient clipped
+    3. PPO epochs    per epoch: advantages (WeightedMultiGAE with the current critic), value targets standardised
+                     -> minibatches -> HybridClipPPOLoss -> KL and learning rate -> Adam step, gradient clipped
     4. normalisers   the observation statistics absorb the batch just trained on; the learning rate anneals;
                      the collector gets the new policy
     5. schedule      RuleScheduler.step: every `interval` iterations statistics -> rule -> w_k in the estimator
@@ -32,9 +32,7 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
-from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
 from torchrl_ahrs.training.models import RunningNorm
-from torchrl_ahrs.training.value_norm import ValueTargetNormalization
 
 # what the loss (and the KL between the collecting and the current policy) reads from a minibatch, besides
 # the loss's own in_keys; the batch also holds "next", episode accumulators... that are never gathered
@@ -43,10 +41,11 @@ MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """The numbers :func:`learn` reads (the app fills them from ``trainer.*``; TorchRL's names).
+    """The numbers :func:`learn` reads (the app fills them from ``trainer.*`` and ``ppo.kl_target``; TorchRL's names).
 
-    ``anneal_lr``: ``lr_i = lr_0 (1 - frames_i / total_frames)`` after every iteration (off when an adaptive-KL
-    rule sets the rate); ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped).
+    ``anneal_lr``: ``lr_i = lr_0 (1 - frames_i / total_frames)`` after every iteration; ``kl_target``: instead,
+    :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
+    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped).
 
     Example:
         >>> LoopSettings(total_frames=4096, num_minibatches=0)
@@ -60,11 +59,14 @@ class LoopSettings:
     num_minibatches: int = 4
     max_grad_norm: float | None = 1.0
     anneal_lr: bool = True
+    kl_target: float | None = None
 
     def __post_init__(self):
         for name in ("total_frames", "num_epochs", "num_minibatches"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.kl_target is not None and self.kl_target <= 0:
+            raise ValueError(f"the KL target must be positive, got {self.kl_target}")
 
 
 @dataclass
@@ -96,8 +98,8 @@ class TrainingRun:
         settings: :class:`LoopSettings`.
         generator: draws the minibatch permutations (on the batch's device).
         observation_norms: ``(normaliser, observation key)`` pairs updated after each update.
-        value_targets: rewrites the value targets in the critic's normalised units (``ppo.value_norm``).
-        kl_rule: sets the learning rate from each minibatch's KL (``ppo.kl_target``).
+        value_norm: the critic heads' TorchRL ``ValueNorm`` (``ppo.value_norm``): the loss regresses value targets
+            standardised with it (:mod:`~torchrl_ahrs.training.value_norm`), GAE reads the critic in reward units.
         console, video, checkpoint: called once per iteration, in the log and checkpoint sections.
         progress: the loop's counters (loaded on resume).
 
@@ -139,8 +141,7 @@ class TrainingRun:
     settings: LoopSettings
     generator: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
     observation_norms: Sequence[tuple[RunningNorm, str]] = ()
-    value_targets: ValueTargetNormalization | None = None
-    kl_rule: AdaptiveKLLR | None = None
+    value_norm: Any = None
     console: Callable[[TensorDictBase], Any] | None = None
     video: Callable[[], None] | None = None
     checkpoint: Callable[[], None] | None = None
@@ -158,6 +159,8 @@ def learn(run: TrainingRun) -> dict[str, float]:
     max_norm = math.inf if settings.max_grad_norm is None else settings.max_grad_norm
     for group in optimizer.param_groups:  # lr_0 of the anneal, saved with the optimiser (torch's schedulers' key)
         group.setdefault("initial_lr", group["lr"])
+    if settings.kl_target is not None and not getattr(run.loss, "kl", False):
+        raise ValueError("LoopSettings.kl_target reads the loss's 'kl' output: build HybridClipPPOLoss(..., kl=True)")
     guard = FiniteGuard(components)
     latest: dict[str, float] = {}
     last_time = time.perf_counter()
@@ -179,18 +182,28 @@ def learn(run: TrainingRun) -> dict[str, float]:
             # ---- 3. PPO epochs ------------------------------------------------------------------------------
             average: TensorDictBase | None = None
             for epoch in range(settings.num_epochs):
-                # advantages with the current critic: A_k and value_target [N, T, K], advantage = Σ_k w_k A_k
                 with torch.no_grad():
+                    # advantages with the current critic: A_k and value_target [N, T, K], advantage = Σ_k w_k A_k
                     estimator(batch)
-                selected = batch.select(*keys, strict=False)  # shares the tensors; rewrites below stay out of batch
-                if run.value_targets is not None:  # the critic regresses standardised targets, GAE read reward units
-                    selected = run.value_targets(selected, new_batch=epoch == 0)  # statistics absorb a batch once
+                    selected = batch.select(*keys, strict=False)  # shares the tensors; the sets below stay out of batch
+                    if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
+                        targets = selected.get("value_target")
+                        if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
+                            run.value_norm.update(targets)
+                        selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
+                        selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
                 for j, minibatch in enumerate(epoch_minibatches(selected, settings.num_minibatches, run.generator)):
                     progress.optim_steps += 1
                     losses = run.loss(minibatch)
-                    # KL and learning rate: the adaptive-KL rule sets this step's rate from this minibatch's KL
-                    if run.kl_rule is not None:
-                        run.kl_rule(minibatch, losses)
+                    # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
+                    # collecting to the current policy (rsl_rl's adaptive rule)
+                    if settings.kl_target is not None:
+                        lr = adaptive_kl_lr(
+                            optimizer.param_groups[0]["lr"], losses.get("kl").item(), settings.kl_target
+                        )
+                        for group in optimizer.param_groups:
+                            group["lr"] = lr
+                        losses.set("lr", torch.tensor(lr))
                     # step: the sum of the loss_* terms, the gradient's global norm clipped to max_grad_norm
                     sum(value for key, value in losses.items() if key.startswith("loss_")).backward()
                     losses.set("grad_norm", nn.utils.clip_grad_norm_(params, max_norm).detach())
@@ -212,7 +225,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
             # only now, so the log-probabilities stored at collection stay those of the policy being optimised
             for norm, key in run.observation_norms:
                 norm.update(batch.get(key))
-            if settings.anneal_lr:
+            if settings.anneal_lr and settings.kl_target is None:
                 fraction = min(1.0, frames / settings.total_frames)
                 for group in optimizer.param_groups:
                     group["lr"] = group["initial_lr"] * (1.0 - fraction)  # lr_i = lr_0 (1 - f_i / F)
@@ -242,6 +255,37 @@ def learn(run: TrainingRun) -> dict[str, float]:
     finally:
         run.collector.shutdown()
     return latest
+
+
+def adaptive_kl_lr(
+    lr: float, kl: float, target: float, min_lr: float = 1e-5, max_lr: float = 1e-2, factor: float = 1.5
+) -> float:
+    """The learning rate after a minibatch whose KL from the collecting policy is ``kl`` (rsl_rl's and rl_games' rule)::
+
+        KL = E_s[ KL( N(mu_old, sigma_old) || N(mu_new, sigma_new) ) ]      (summed over action dims)
+        KL > 2 * target   ->  lr <- max(lr / 1.5, min_lr)
+        KL < target / 2   ->  lr <- min(lr * 1.5, max_lr)
+
+    The factors 2, 1/2 and 1.5 are those of rsl_rl's ``PPO.update`` (``schedule="adaptive"``,
+    ``desired_kl=0.01``, lr bounded to [1e-5, 1e-2]) and rl_games' ``AdaptiveScheduler``
+    (``kl_threshold``: 0.008 in its ``mujoco/ant_envpool.yaml``, bounds [1e-6, 1e-2]). The KL is the ``"kl"``
+    output of :class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss` built with ``kl=True``: the closed form
+    between the Gaussians *before* the tanh squash, as rsl_rl reads it from its loss forward pass (KL is
+    invariant under a bijection applied to both distributions, so it equals the KL of the squashed policies).
+
+    Example:
+        >>> adaptive_kl_lr(1e-3, kl=0.001, target=0.01)  # barely moved: x 1.5
+        0.0015
+        >>> adaptive_kl_lr(9e-3, kl=0.0, target=0.01)  # bounded by max_lr
+        0.01
+    """
+    if target <= 0:
+        raise ValueError(f"the KL target must be positive, got {target}")
+    if kl > 2.0 * target:
+        return max(lr / factor, min_lr)  # too far from the collecting policy: smaller steps
+    if kl < 0.5 * target:
+        return min(lr * factor, max_lr)  # barely moved: larger steps
+    return lr
 
 
 def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: torch.Generator) -> list[TensorDictBase]:
