@@ -41,7 +41,7 @@ from torchrl_ahrs.app.checkpoint import (
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
-from torchrl_ahrs.app.video import build_video_log
+from torchrl_ahrs.app.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.loggers import build_logger
@@ -103,7 +103,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         console = ConsoleProgress(
             cfg.trainer.total_frames, components, estimator, scheduler, table_interval, start_frames=done_frames
         )
-    video = build_video_log(cfg, networks.actor, make_envs, run.path)
+    video = register_video_log(None, cfg, networks.actor, make_envs, run.path)  # a clip every video_interval
     norms = [(networks.actor_norm, "observation")]
     if networks.critic_norm is not networks.actor_norm:  # privileged critic observations have their own statistics
         norms.append((networks.critic_norm, networks.critic_key))

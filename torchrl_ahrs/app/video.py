@@ -27,6 +27,7 @@ from tensordict import TensorDict
 from torchrl.envs import EnvBase
 from torchrl.record import VideoRecorder
 from torchrl.record.loggers import Logger
+from torchrl.trainers import Trainer, TrainerHookBase
 
 from torchrl_ahrs.app.run_dir import RunDirectory
 from torchrl_ahrs.evaluation.episodes import record_frames
@@ -85,7 +86,7 @@ class GifVideoLogger(Logger):
             self.experiment.close()
 
 
-class VideoLog:
+class VideoLog(TrainerHookBase):
     """Every ``interval`` iterations: one clip of ``num_frames`` frames of the policy (mean action).
 
     Args:
@@ -99,7 +100,7 @@ class VideoLog:
 
     Example:
         >>> hook = VideoLog(make_envs, actor, run_dir, interval=10)  # doctest: +SKIP
-        >>> hook()  # once per training iteration; a clip every 10th  # doctest: +SKIP
+        >>> hook.register(trainer)  # doctest: +SKIP
     """
 
     def __init__(
@@ -149,12 +150,16 @@ class VideoLog:
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.iteration = state_dict["iteration"]
 
+    def register(self, trainer: Trainer, name: str = "video_log") -> None:
+        trainer.register_op("post_steps", self)
+        trainer.register_module(name, self)
 
-def build_video_log(
-    cfg: DictConfig, policy, make_envs: Callable[[int, int], EnvBase], run_dir: Path
-) -> VideoLog | None:
-    """A :class:`VideoLog` when ``cfg.logger.video_interval`` is a positive number, else None. Also reads
-    ``logger.video_frames`` / ``video_width`` / ``video_height`` when present."""
+
+def register_video_log(
+    trainer: Trainer | None, cfg: DictConfig, policy, make_envs: Callable[[int, int], EnvBase], run_dir: Path
+):
+    """Registers a :class:`VideoLog` when ``cfg.logger.video_interval`` is a positive number; returns it
+    (or None). Also reads ``logger.video_frames`` / ``video_width`` / ``video_height`` when present."""
     logger_cfg = cfg.get("logger") or {}
     interval = int(logger_cfg.get("video_interval", 0) or 0)
     if interval <= 0:
@@ -169,4 +174,6 @@ def build_video_log(
         height=int(logger_cfg.get("video_height", 120)),
         seed=int(cfg.seed) + 777,
     )
+    if trainer is not None:  # None: only built, for training/loop.py, which calls it once per iteration
+        hook.register(trainer)
     return hook
