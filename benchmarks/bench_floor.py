@@ -14,7 +14,7 @@ thread count and per collected batch of N envs x T steps:
   random actions, partial resets included;
 * ``policy forward``: the actor sampling actions for N observations, T times;
 * ``collection``: the run's ``Collector`` delivering a batch: physics, policy and TorchRL's per-step work;
-* ``advantages``: ``WeightedMultiGAE`` over one collected batch, once per epoch (as ``PPOMinibatches`` runs it);
+* ``advantages``: ``WeightedMultiGAE`` over one collected batch, once per epoch (as ``training/loop.py`` runs it);
 * ``loss steps``: loss forward, backward, gradient clipping and a fused Adam step on a ready minibatch of the
   run's size, times epochs x minibatches.
 
@@ -38,6 +38,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_ahrs.app.build import build_collector, build_estimator_and_loss, build_networks, env_factory
 from torchrl_ahrs.app.config import num_minibatches
+from torchrl_ahrs.training.loop import MINIBATCH_KEYS
 
 
 def median_ms(fn, repeats: int, warmup: int = 2) -> float:
@@ -96,7 +97,7 @@ def floor_parts(cfg, repeats: int) -> dict[str, float]:
             estimator(batch)
 
     parts[f"advantages (x {trainer.num_epochs} epochs)"] = trainer.num_epochs * median_ms(advantages, repeats)
-    keys = [*loss.in_keys, "advantage", "value_target", "state_value", "loc", "scale"]  # what PPOMinibatches serves
+    keys = [*loss.in_keys, *MINIBATCH_KEYS]  # what training/loop.py gathers into minibatches
     minibatch = batch.reshape(-1)[: trainer.mini_batch_size].select(*keys, strict=False)
     optimizer = torch.optim.Adam(loss.parameters(), lr=1e-5, eps=1e-5, fused=True)  # as train() builds it
 

@@ -5,7 +5,7 @@ Both train PPO on the MuJoCo Ant-v5 task for the same number of frames with the 
 the same thread count:
 
 - ``ours``: :func:`torchrl_ahrs.app.iteration.train` with ``task=ant_v5 method=<ppo|hdppo>`` (EnvPool's Ant-v5
-  behind our batched env, reward components, K-head critic, WeightedMultiGAE, TorchRL Trainer + hooks,
+  behind our batched env, reward components, K-head critic, WeightedMultiGAE, the loop of training/loop.py,
   CSV + TensorBoard logging), exactly as ``python -m torchrl_ahrs.train`` runs it.
 - ``reference``: the pipeline TorchRL's ``sota-implementations/ppo`` builds for MuJoCo, written here
   from its description (``reference_ppo.py``, shared with ``learning.py``): gymnasium's ``Ant-v5`` through ``GymEnv`` in a ``ParallelEnv`` holding the

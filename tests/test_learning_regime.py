@@ -14,11 +14,10 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torch.distributions import Independent, Normal, kl_divergence
 
-from torchrl_ahrs.training.hooks import PPOMinibatches
-from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
+from torchrl_ahrs.training.loop import LoopSettings, adaptive_kl_lr, epoch_minibatches
 from torchrl_ahrs.training.loss import HybridClipPPOLoss, gaussian_kl
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
-from torchrl_ahrs.training.value_norm import ValueTargetNormalization, denormalized_critic, make_value_norm
+from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
 
 
@@ -60,19 +59,14 @@ def test_loss_writes_the_kl_from_the_collecting_to_the_current_policy(distributi
     [(0.0, 1.5e-3), (0.01, 1e-3), (1.0, 1e-3 / 1.5)],  # below target / 2, in the band, above 2 x target
 )
 def test_adaptive_kl_rule(kl, expected_lr):
-    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=1e-3)
-    losses = AdaptiveKLLR(optimizer, target=0.01)(TensorDict({}, []), TensorDict({"kl": torch.tensor(kl)}, []))
-    assert optimizer.param_groups[0]["lr"] == pytest.approx(expected_lr)
-    assert losses["lr"].item() == pytest.approx(expected_lr)
+    assert adaptive_kl_lr(1e-3, kl, target=0.01) == pytest.approx(expected_lr)
 
 
-def test_adaptive_kl_respects_bounds_and_needs_the_losss_kl():
-    optimizer = torch.optim.Adam([torch.nn.Parameter(torch.zeros(2))], lr=9e-3)
-    hook = AdaptiveKLLR(optimizer, target=0.01)
-    hook(TensorDict({}, []), TensorDict({"kl": torch.tensor(0.0)}, []))
-    assert optimizer.param_groups[0]["lr"] == pytest.approx(1e-2)
-    with pytest.raises(KeyError, match="'kl'"):
-        hook(TensorDict({}, []), TensorDict({}, []))
+def test_adaptive_kl_respects_bounds_and_needs_a_positive_target():
+    assert adaptive_kl_lr(9e-3, 0.0, target=0.01) == pytest.approx(1e-2)
+    assert adaptive_kl_lr(1.2e-5, 1.0, target=0.01) == pytest.approx(1e-5)  # bounded by min_lr
+    with pytest.raises(ValueError, match="KL target must be positive"):
+        LoopSettings(total_frames=64, kl_target=0.0)
 
 
 def test_value_norm_statistics_per_head_match_numpy():
@@ -101,27 +95,12 @@ def test_denormalized_critic_shares_parameters_and_maps_to_reward_units():
     assert "module.1.value_norm.mean" in critic.state_dict()  # the statistics travel with the checkpointed critic
 
 
-def test_value_targets_are_normalised_for_the_loss_only():
-    hook = ValueTargetNormalization(make_value_norm("running", 1))
-    batch = TensorDict({"value_target": torch.tensor([[0.0], [4.0]]), "state_value": torch.tensor([[2.0], [2.0]])}, [2])
-    minibatches = PPOMinibatches(
-        lambda td: td, num_minibatches=1, keys=["value_target", "state_value"], post_estimate=hook
-    )
-    minibatches.pre_epoch(batch)
-    served = minibatches.next_minibatch(batch)
-    assert sorted(served["value_target"].squeeze(-1).tolist()) == pytest.approx([-1.0, 1.0], abs=1e-4)
-    assert batch["value_target"].squeeze(-1).tolist() == [0.0, 4.0]  # the collected batch keeps reward units
-    minibatches.pre_epoch(batch)  # second epoch of the same batch: the statistics do not absorb it again
-    assert hook.value_norm.count.item() == 2
-
-
-def test_minibatches_gather_only_the_keys_the_loss_reads():
-    batch = TensorDict({"a": torch.arange(8.0), "b": torch.zeros(8), "next": {"c": torch.ones(8)}}, [8])
-    minibatches = PPOMinibatches(lambda td: td, num_minibatches=2, seed=0, keys=["a"])
-    minibatches.pre_epoch(batch)
-    served = [minibatches.next_minibatch(batch) for _ in range(2)]
-    assert all(set(mb.keys()) == {"a"} for mb in served)
-    assert sorted(torch.cat([mb["a"] for mb in served]).tolist()) == list(range(8))
+def test_each_epoch_serves_every_transition_once_in_a_fresh_order():
+    batch = TensorDict({"a": torch.arange(10.0)}, [10])
+    generator = torch.Generator().manual_seed(0)
+    epochs = [torch.cat([mb["a"] for mb in epoch_minibatches(batch, 3, generator)]).tolist() for _ in range(2)]
+    assert [len(mb) for mb in epoch_minibatches(batch, 3, generator)] == [2, 4, 4]  # torch.chunk's sizes, last first
+    assert all(sorted(order) == list(range(10)) for order in epochs) and epochs[0] != epochs[1]
 
 
 def test_gae_bootstraps_on_truncation_but_not_on_termination():

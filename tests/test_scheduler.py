@@ -104,7 +104,7 @@ def test_fixed_rule_installs_hand_computed_weights_every_interval(tmp_path):
     # means over both batches: [2, 2, 4] -> n = [0, 0, 1]
     assert weights[1].tolist() == [0.5, 0.5, 1.5] and estimator.weights.tolist() == [0.5, 0.5, 1.5]
     assert scheduler.scalars()["scheduler/rule"] == 1.0
-    assert scheduler.scalars()["scheduler/weight_survive"] == 1.5
+    assert scheduler.scalars()["weight/survive"] == 1.5
     lines = (tmp_path / DECISIONS).read_text().splitlines()
     assert len(lines) == 1 and '"rule": "mean_returns_only"' in lines[0]
 

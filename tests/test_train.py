@@ -201,9 +201,7 @@ def test_asymmetric_critic_reads_the_privileged_state(tmp_path):
     )
     train(cfg, tmp_path)
     checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
-    # the loss holds the critic as a module (functional=False): its entries are critic_network.*
-    critic = {key: value for key, value in checkpoint["loss_module"].items() if key.startswith("critic_network")}
-    critic_norm_means = [value for key, value in critic.items() if key.endswith("mean")]
+    critic_norm_means = [value for key, value in checkpoint["critic"].items() if key.endswith("mean")]
     first_actor_layer = next(value for key, value in checkpoint["actor"].items() if key.endswith("weight"))
     assert critic_norm_means[0].shape == (123,)  # MuJoCo Playground's privileged state
     assert first_actor_layer.shape[-1] == 48  # the policy still sees only the proprioceptive state

@@ -171,7 +171,7 @@ def build_estimator_and_loss(
         lmbda=ppo.lmbda,
         value_network=gae_critic,
         component_scale=ppo.component_scale,
-        value_norm=value_norm,  # read by component_scale=value_norm; updated by ValueTargetNormalization
+        value_norm=value_norm,  # read by component_scale=value_norm; updated by the loop (training/loop.py)
     )
     estimator.to(device)  # the weights [K] and shares [K] buffers, and the value-norm statistics
     loss = HybridClipPPOLoss(

@@ -1,24 +1,27 @@
 """Atomic checkpoints and exact resumption of a training run.
 
-A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.run_dir.RunDirectory.checkpoint>`) is
-``Trainer.state_dict()``, the trainer's one registry of everything the next iteration depends on:
+A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.run_dir.RunDirectory.checkpoint>`) is the
+state of the run's one registry, ``{name: object with state_dict / load_state_dict}``, which
+:func:`torchrl_ahrs.app.iteration.train` builds; each thing the next iteration depends on has one entry:
 
-- ``loss_module``: actor and K-head critic parameters, observation normaliser statistics;
-- ``optimizer``: Adam's moments and step counts, the current learning rate;
-- ``collector``: frames and iteration counters, the policy's weights, the environments (through
+- ``state``: the loop's counters (collected frames, optimiser steps; :class:`~torchrl_ahrs.training.loop.Progress`);
+- ``collector``: frame and iteration counters, the environments (through
   :class:`~torchrl_ahrs.envs.common.snapshot.BaseEnvSnapshot`: every simulation's integration state,
   counters, targets/commands and reset-noise generator) and the carried tensordict (the last
-  observation, running episode returns, trajectory ids; :class:`~torchrl_ahrs.training.collector.ResumableCollector`);
-- ``state``: the trainer's counters (collected frames, optimisation steps, last log/save);
-- every registered module by name: ``estimator`` (the mixing weights, their only home: the scheduler
-  reads and sets them there), ``actor``, ``component_returns``,
-  ``ppo_minibatches`` (its shuffling generator), ``obs_norm``, ``lr_decay`` (when ``anneal_lr``),
-  ``update_weights``, ``rule_scheduler`` (counters, last rule, statistics history, selector and its generator),
-  ``video_log`` (when videos are on), ``rng`` (Python's, NumPy's and torch's global generators) and
-  ``checkpoint`` (its iteration counter and the component names).
+  observation, running episode returns, trajectory ids; :class:`~torchrl_ahrs.training.collector.ResumableCollector`),
+  not the policy (that is ``actor``);
+- ``actor``: the policy's parameters and its observation statistics (what evaluation and export load);
+- ``critic``: the K heads (with the critic's observation statistics: the actor's own, unless privileged);
+- ``estimator``: the mixing weights (their only home: the scheduler reads and sets them there), the last
+  shares and the value-norm statistics;
+- ``optimizer``: Adam's moments and step counts, the current and the initial learning rate;
+- ``minibatches``: the generator of the minibatch permutations (:class:`GeneratorState`);
+- ``rule_scheduler``: counters, last rule, statistics history, selector and its generator;
+- ``video_log`` (when videos are on), ``rng`` (:class:`GlobalRNG`: Python's, NumPy's and torch's global
+  generators) and ``checkpoint`` (:class:`CheckpointHook`: its iteration counter and the component names).
 
 It is written to a temporary file and renamed over the old one, so a process killed mid-write leaves
-the previous checkpoint intact. Resuming loads it into a trainer built anew from the saved config, after
+the previous checkpoint intact. Resuming loads it into a run built anew from the saved config, after
 every piece has been built (and has drawn whatever random numbers building draws), so the resumed run
 continues bit for bit: on CPU a run interrupted after any checkpoint and resumed equals the
 uninterrupted run (parameters, optimiser, metric rows except timing, scheduler decisions;
@@ -27,6 +30,9 @@ worker processes of ``multi``/``async`` collectors sample with generators of the
 non-blocking scheduler decides when its thread answers. EnvPool-backed tasks (``ant_v5``, ``humanoid``,
 ``go1_terrain``, ``leap_cube``, ``shadow_hand``, ``dmc_*``) cannot snapshot their C++ simulators: a resumed
 run starts new episodes there (re-seeded from the seed and the frame counter).
+
+Checkpoints written before this registry (TorchRL ``Trainer.state_dict()``: ``loss_module``, the actor a
+second time, the trainer's counters) cannot be resumed; evaluation still reads their ``actor`` entry.
 
 On resume, metric rows and scheduler decisions logged after the checkpoint (by the iterations that
 were lost) are removed, so each iteration appears exactly once. The LLM calls log is an audit log of
@@ -37,13 +43,15 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Sequence
+import random
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
-from torchrl.trainers import Trainer, TrainerHookBase
 
+from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import RunDirectory
 
 
@@ -104,12 +112,87 @@ def truncate_jsonl(path: Path, last_frames: int, frames_field: str = "frames") -
     return len(lines) - len(kept)
 
 
-class CheckpointHook(TrainerHookBase):
-    """Saves ``state_fn()`` (``Trainer.state_dict``) atomically every ``interval`` training iterations.
+def registry_state(registry: Mapping[str, Any]) -> dict[str, Any]:
+    """``{name: obj.state_dict()}``: what a checkpoint holds.
 
-    Register it after every other ``post_steps`` hook, so that the saved state is the one the next
+    Example:
+        >>> registry_state({"rng": GeneratorState(torch.Generator().manual_seed(0))})["rng"]["generator"].dtype
+        torch.uint8
+    """
+    return {name: obj.state_dict() for name, obj in registry.items()}
+
+
+def load_registry(registry: Mapping[str, Any], state: Mapping[str, Any], path: Path | str = "the checkpoint") -> None:
+    """Loads ``state`` into every entry of ``registry``, in the registry's order.
+
+    Raises:
+        ConfigError: ``state`` lacks entries of the registry (a checkpoint of an older layout), naming them.
+    """
+    missing = [name for name in registry if name not in state]
+    if missing:
+        raise ConfigError(
+            f"{path} has no {', '.join(missing)} entries: it was written by an older version (TorchRL Trainer "
+            "layout) and cannot be resumed; start a new run (evaluation still reads its actor)"
+        )
+    for name, obj in registry.items():
+        obj.load_state_dict(state[name])
+
+
+class GlobalRNG:
+    """Python's, NumPy's and torch's global generators as one registry entry (with the learner's CUDA
+    generator, which samples the policy's actions, when it runs on a GPU).
+
+    Example:
+        >>> rng = GlobalRNG()
+        >>> state = rng.state_dict(); first = torch.rand(1)
+        >>> rng.load_state_dict(state); bool(torch.rand(1) == first)
+        True
+    """
+
+    def __init__(self, device: torch.device | str = "cpu"):
+        self.device = torch.device(device)
+
+    def state_dict(self) -> dict[str, Any]:
+        state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+        if self.device.type == "cuda":
+            state["cuda"] = torch.cuda.get_rng_state(self.device)
+        return state
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        random.setstate(state_dict["python"])
+        np.random.set_state(state_dict["numpy"])
+        torch.set_rng_state(state_dict["torch"])
+        if "cuda" in state_dict and self.device.type == "cuda":
+            torch.cuda.set_rng_state(state_dict["cuda"], self.device)
+
+
+class GeneratorState:
+    """A ``torch.Generator`` (e.g. the minibatch permutations') as a registry entry.
+
+    Example:
+        >>> entry = GeneratorState(torch.Generator().manual_seed(0))
+        >>> state = entry.state_dict(); first = torch.randperm(4, generator=entry.generator)
+        >>> entry.load_state_dict(state); torch.equal(torch.randperm(4, generator=entry.generator), first)
+        True
+    """
+
+    def __init__(self, generator: torch.Generator):
+        self.generator = generator
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.generator.set_state(state_dict["generator"])
+
+
+class CheckpointHook:
+    """Saves ``state_fn()`` (the registry's state) atomically every ``interval`` training iterations and
+    at the last one (``is_last()`` true).
+
+    The loop calls it after everything else in an iteration, so that the saved state is the one the next
     iteration starts from. Its own state (the iteration counter and the component names, which an
-    evaluation reads to rebuild the critic-free policy) is part of what it saves once registered.
+    evaluation reads to rebuild the critic-free policy) is a registry entry too.
 
     Example:
         >>> import tempfile
@@ -125,19 +208,23 @@ class CheckpointHook(TrainerHookBase):
     """
 
     def __init__(
-        self, path: Path, interval: int, state_fn: Callable[[], dict[str, Any]], components: Sequence[str] = ()
+        self,
+        path: Path,
+        interval: int,
+        state_fn: Callable[[], dict[str, Any]],
+        components: Sequence[str] = (),
+        is_last: Callable[[], bool] = lambda: False,
     ):
         self.path = Path(path)
         self.interval = interval
         self.state_fn = state_fn
         self.components = list(components)
+        self.is_last = is_last
         self.iteration = 0
-        self.trainer: Trainer | None = None
 
     def __call__(self) -> None:
         self.iteration += 1
-        finished = self.trainer is not None and self.trainer.collected_frames >= self.trainer.total_frames
-        if self.iteration % self.interval == 0 or finished:  # the last one is saved before the collector shuts down
+        if self.iteration % self.interval == 0 or self.is_last():  # the last one before the collector shuts down
             self.save()
 
     def save(self) -> None:
@@ -149,8 +236,3 @@ class CheckpointHook(TrainerHookBase):
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.iteration = int(state_dict["iteration"])
         self.components = list(state_dict["components"])
-
-    def register(self, trainer: Trainer, name: str = "checkpoint") -> None:
-        self.trainer = trainer
-        trainer.register_op("post_steps", self)
-        trainer.register_module(name, self)

@@ -1,30 +1,9 @@
-"""One training run: TorchRL's ``Trainer`` with the hooks of a hybrid-reward PPO iteration, registered
-in one place, in the order they run.
+"""One training run: builds the parts from the config, loads a checkpoint when resuming, and hands them
+to :func:`torchrl_ahrs.training.loop.learn`, the iteration written as one function.
 
-One iteration, step by step (``Trainer.train``'s hook points in brackets)::
-
-    1. collect         Collector steps N envs × T steps with the current policy   -> batch [N, T]
-    2. rewards         RewardComponents / AuxiliaryReward already wrote ("next", "reward", c), c = 1..K
-       [batch_process] FiniteGuard: stop on NaN/inf; ObservationNormUpdate.remember(batch)
-       [pre_steps_log] ComponentReturnLog: reward/<c>, return/<c>, weight/<c>, frames_per_second
-       [pre_steps_log] ConsoleProgress: one line (frames, frames/s, ETA, return, rule); a table at decisions
-    3. advantages      [pre_epoch] PPOMinibatches: WeightedMultiGAE(batch) with the current critic
-                       -> advantage_components [N,T,K], value_target [N,T,K], advantage = Σ_k w_k A_k
-    4. PPO epochs      [process_optim_batch] shuffled minibatches -> HybridClipPPOLoss -> Adam (clipped)
-       [post_optim_complete_log] loss_metrics: train/<loss term>
-       [post_optim_complete_log] ComponentShareLog: share/<c> = w_k std(A'_k) / sum_j w_j std(A'_j)
-    5. after update    [post_steps] ObservationNormUpdate.apply, LinearLRDecay, UpdateWeights (collector)
-    6. schedule        [post_steps] RuleScheduler: every `interval` iterations stats -> rule -> w_k
-    7. checkpoint      [post_steps] CheckpointHook: everything in the trainer's registry, atomically
-
-Steps 5–7 share the ``post_steps`` hook point, where TorchRL runs hooks in registration order:
-:func:`register_iteration` is the only place that registers them, and :func:`check_order` verifies
-the resulting order before training starts.
-
-Checkpointed state has one owner, the trainer's registry (``Trainer.state_dict``): the loss module
-(actor, critic, observation statistics), the optimiser (with the current learning rate), the collector,
-and every module registered below under its name (the full list is in :mod:`.checkpoint`). Saving and
-resuming both go through it, and a resumed run is bit-identical to an uninterrupted one on CPU.
+The run's state has one registry, ``{name: object with state_dict / load_state_dict}`` (the entries are listed
+in :mod:`.checkpoint`): the checkpoint saves it, a resumed run loads it after every part has been built, and a
+resumed run is bit-identical to an uninterrupted one on CPU.
 """
 
 from __future__ import annotations
@@ -38,7 +17,6 @@ from typing import Any
 import numpy as np
 import torch
 from omegaconf import DictConfig
-from torchrl.trainers import Trainer, TrainerHookBase, UpdateWeights
 
 from torchrl_ahrs.app.build import (
     build_checked_scheduler,
@@ -50,140 +28,26 @@ from torchrl_ahrs.app.build import (
 )
 from torchrl_ahrs.app.checkpoint import (
     CheckpointHook,
+    GeneratorState,
+    GlobalRNG,
     collected_frames,
     load_checkpoint,
+    load_registry,
     mark_finished,
+    registry_state,
     truncate_jsonl,
     truncate_metrics,
 )
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
+from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.console import ConsoleProgress
-from torchrl_ahrs.training.hooks import (
-    ComponentReturnLog,
-    ComponentShareLog,
-    FiniteGuard,
-    LinearLRDecay,
-    ObservationNormUpdate,
-    PPOMinibatches,
-    loss_metrics,
-)
-from torchrl_ahrs.training.kl_schedule import AdaptiveKLLR
 from torchrl_ahrs.training.loggers import build_logger
-from torchrl_ahrs.training.value_norm import ValueTargetNormalization
+from torchrl_ahrs.training.loop import LoopSettings, Progress, TrainingRun, learn
 
 log = logging.getLogger("torchrl_ahrs.train")
-
-# The post_steps hooks in the order one iteration must run them (steps 5-7 of the module docstring).
-POST_STEPS_ORDER = (
-    "obs_norm",
-    "critic_obs_norm",
-    "lr_decay",
-    "update_weights",
-    "rule_scheduler",
-    "video_log",
-    "checkpoint",
-)
-
-
-class GlobalRNG(TrainerHookBase):
-    """Python's, NumPy's and torch's global generators as one registered piece of state (with the learner's
-    CUDA generator, which samples the policy's actions, when it runs on a GPU)."""
-
-    def __init__(self, device: torch.device | str = "cpu"):
-        self.device = torch.device(device)
-
-    def state_dict(self) -> dict[str, Any]:
-        state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
-        if self.device.type == "cuda":
-            state["cuda"] = torch.cuda.get_rng_state(self.device)
-        return state
-
-    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        random.setstate(state_dict["python"])
-        np.random.set_state(state_dict["numpy"])
-        torch.set_rng_state(state_dict["torch"])
-        if "cuda" in state_dict and self.device.type == "cuda":
-            torch.cuda.set_rng_state(state_dict["cuda"], self.device)
-
-    def register(self, trainer: Trainer, name: str = "rng") -> None:
-        trainer.register_module(name, self)
-
-
-def register_iteration(trainer: Trainer, parts: dict[str, Any]) -> None:
-    """Registers every hook of one iteration on ``trainer``, in the order of the module docstring.
-
-    ``parts`` holds the run's pieces by name (``components``, ``estimator``, ``loss``, ``networks``, ``optimizer``,
-    ``scheduler``, ``collector``, ``checkpoint``, ``cfg``, ``run_dir``, ``device``); optional hooks (critic
-    normaliser, LR decay, video) are registered only when the run uses them.
-    """
-    cfg, networks = parts["cfg"], parts["networks"]
-    # 2. rewards: guard and remember the batch's observations
-    trainer.register_op("batch_process", FiniteGuard(parts["components"]))
-    obs_norm = ObservationNormUpdate(networks.actor_norm)
-    critic_norm = None
-    if networks.critic_norm is not networks.actor_norm:
-        critic_norm = ObservationNormUpdate(networks.critic_norm, networks.critic_key)
-    returns_log = ComponentReturnLog(parts["components"], parts["estimator"])
-    returns_log.register(trainer)
-    if cfg.trainer.progress_bar:  # one short line per iteration, a per-component table now and then
-        ConsoleProgress(
-            cfg.trainer.total_frames,
-            parts["components"],
-            parts["estimator"],
-            parts["scheduler"],
-            table_interval=int(cfg.trainer.get("table_interval", 10)),
-            start_frames=int(parts.get("done_frames", 0)),
-        ).register(trainer)
-    # 3-4. advantages and PPO epochs
-    estimator, loss = parts["estimator"], parts["loss"]
-    value_norm = getattr(estimator, "value_norm", None)
-    PPOMinibatches(
-        estimator,
-        num_minibatches(cfg),
-        seed=int(cfg.seed),
-        keys=[*loss.in_keys, "advantage", "value_target", "state_value", "loc", "scale"],
-        post_estimate=ValueTargetNormalization(value_norm) if value_norm is not None else None,
-        device=parts.get("device", "cpu"),
-    ).register(trainer)
-    if cfg.ppo.get("kl_target"):  # adaptive KL schedule (training/kl_schedule.py), in place of the linear decay
-        AdaptiveKLLR(parts["optimizer"], target=cfg.ppo.kl_target).register(trainer)  # reads the loss's "kl"
-    trainer.register_op("post_optim_complete_log", loss_metrics)
-    ComponentShareLog(parts["components"], parts["estimator"]).register(trainer)  # share/<c> after the epochs
-    # 5. after the update: normalisers absorb the batch, learning rate, policy weights to the collector
-    obs_norm.register(trainer)
-    if critic_norm is not None:
-        critic_norm.register(trainer, "critic_obs_norm")
-    if cfg.trainer.anneal_lr and not cfg.ppo.get("kl_target"):
-        LinearLRDecay(parts["optimizer"], cfg.trainer.total_frames).register(trainer)
-    update_weights = UpdateWeights(parts["collector"], update_weights_interval=1)
-    update_weights.register(trainer)
-    # 6. schedule
-    parts["scheduler"].register(trainer, "rule_scheduler")
-    register_video_log(trainer, cfg, networks.actor, parts["make_envs"], parts["run_dir"])
-    # 7. checkpoint: last, so it saves the state the next iteration starts from
-    GlobalRNG(parts.get("device", "cpu")).register(trainer)
-    parts["checkpoint"].register(trainer)
-    check_order(trainer)
-
-
-def check_order(trainer: Trainer) -> None:
-    """Raises ``RuntimeError`` when the registered ``post_steps`` hooks do not follow :data:`POST_STEPS_ORDER`."""
-    names = [_hook_name(trainer, op) for op, _ in trainer._post_steps_ops]
-    ranks = [POST_STEPS_ORDER.index(name) for name in names if name in POST_STEPS_ORDER]
-    if ranks != sorted(ranks) or ranks[-1:] != [POST_STEPS_ORDER.index("checkpoint")]:
-        raise RuntimeError(f"post_steps hooks out of order: {names}; expected the order {POST_STEPS_ORDER}")
-
-
-def _hook_name(trainer: Trainer, op) -> str:
-    target = getattr(op, "__wrapped__", op)
-    target = getattr(target, "__self__", target)
-    for name, module in trainer._modules.items():
-        if module is target:
-            return name
-    return getattr(target, "__name__", type(target).__name__)
 
 
 def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
@@ -221,55 +85,95 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     # (measured with [64, 64] networks, one thread), as much as the loss forward at small minibatches
     optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.trainer.lr, eps=1e-5, fused=True)
 
-    done_frames = resumed["state"]["collected_frames"] if resumed else 0
-    if resumed:
-        log.info("resuming %s at %d frames", run_dir, done_frames)
-        truncate_metrics(run.metrics, done_frames)
-        truncate_jsonl(run.decisions, done_frames)
+    done_frames = int(resumed["state"]["collected_frames"]) if resumed else 0
     collector = build_collector(cfg, networks.actor, make_envs, devices.learner)
     logger = build_logger(cfg.logger.backends, run.path, METRICS)
-    trainer = Trainer(
-        collector=collector,
-        total_frames=cfg.trainer.total_frames,
-        frame_skip=1,
-        optim_steps_per_batch=num_minibatches(cfg),
-        loss_module=loss,
-        optimizer=optimizer,
-        logger=logger,
-        clip_grad_norm=True,
-        clip_norm=cfg.trainer.max_grad_norm,
-        progress_bar=False,  # ConsoleProgress prints the run's line (TorchRL's bar shows every pbar metric)
-        # what has a state is overwritten by load_state_dict below; on resume, what has none (EnvPool's
-        # simulators) starts episodes different from the first run's
-        seed=cfg.seed + done_frames,
-        num_epochs=cfg.trainer.num_epochs,
-        log_interval=0,
-        save_trainer_interval=sys.maxsize,
-        auto_log_optim_steps=False,
-    )
+    # the environments' seeds, then every global generator from the seed they return (what TorchRL's
+    # Trainer(seed=) did when it ran the loop: kept, so a seed draws the numbers it drew then); what has a state
+    # is overwritten by load_registry below, and on resume what has none (EnvPool's simulators) starts episodes
+    # different from the first run's
+    env_seed = collector.set_seed(int(cfg.seed) + done_frames, static_seed=False)
+    torch.manual_seed(env_seed)
+    np.random.seed(env_seed)
     scheduler = build_checked_scheduler(cfg, estimator, components, run, logger)
-    trainer.register_module("estimator", estimator)
-    trainer.register_module("actor", networks.actor)  # also inside the loss; kept by name for evaluation
-    checkpoint = CheckpointHook(run.checkpoint, cfg.checkpoint.interval or sys.maxsize, trainer.state_dict, components)
-    parts = dict(
-        cfg=cfg, run_dir=run.path, components=components, make_envs=make_envs, networks=networks, estimator=estimator,
-        optimizer=optimizer, collector=collector, scheduler=scheduler, checkpoint=checkpoint, done_frames=done_frames,
-        loss=loss, device=devices.learner,
-    )  # fmt: skip
-    register_iteration(trainer, parts)
+    generator = torch.Generator(device=devices.learner).manual_seed(int(cfg.seed))  # the minibatch permutations
+    console = None
+    if cfg.trainer.progress_bar:  # one short line per iteration, a per-component table now and then
+        table_interval = int(cfg.trainer.get("table_interval", 10))
+        console = ConsoleProgress(
+            cfg.trainer.total_frames, components, estimator, scheduler, table_interval, start_frames=done_frames
+        )
+    video = register_video_log(None, cfg, networks.actor, make_envs, run.path)  # a clip every video_interval
+    norms = [(networks.actor_norm, "observation")]
+    if networks.critic_norm is not networks.actor_norm:  # privileged critic observations have their own statistics
+        norms.append((networks.critic_norm, networks.critic_key))
+    progress = Progress()
+    settings = LoopSettings(
+        total_frames=cfg.trainer.total_frames,
+        num_epochs=cfg.trainer.num_epochs,
+        num_minibatches=num_minibatches(cfg),
+        max_grad_norm=cfg.trainer.max_grad_norm,
+        anneal_lr=bool(cfg.trainer.anneal_lr),
+        kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
+    )
+    # the run's state: one entry per owner (listed in app/checkpoint.py); saved after the iteration's last step
+    registry: dict[str, Any] = {
+        "state": progress,
+        "collector": collector,
+        "actor": networks.actor,
+        "critic": networks.critic,
+        "estimator": estimator,
+        "optimizer": optimizer,
+        "minibatches": GeneratorState(generator),
+        "rule_scheduler": scheduler,
+        **({"video_log": video} if video is not None else {}),
+        "rng": GlobalRNG(devices.learner),
+    }
+    checkpoint = CheckpointHook(
+        run.checkpoint,
+        cfg.checkpoint.interval or sys.maxsize,
+        lambda: registry_state(registry),
+        components,
+        is_last=lambda: progress.collected_frames >= cfg.trainer.total_frames,
+    )
+    registry["checkpoint"] = checkpoint
     if resumed:
         # last, after everything that draws random numbers while being built; from here to the first
         # collection nothing draws, so the resumed run continues the saved one bit for bit
-        trainer.load_state_dict(resumed)
+        try:
+            load_registry(registry, resumed, run.checkpoint)
+        except ConfigError:  # a checkpoint of an older layout: nothing was changed, release what was opened
+            collector.shutdown()
+            logger.close()
+            raise
         collector.update_policy_weights_()
+        log.info("resuming %s at %d frames", run_dir, done_frames)
+        truncate_metrics(run.metrics, done_frames)  # rows and decisions of the iterations lost after the checkpoint
+        truncate_jsonl(run.decisions, done_frames)
 
+    training_run = TrainingRun(
+        collector=collector,
+        loss=loss,
+        estimator=estimator,
+        optimizer=optimizer,
+        scheduler=scheduler,
+        logger=logger,
+        settings=settings,
+        generator=generator,
+        observation_norms=norms,
+        value_norm=getattr(estimator, "value_norm", None),
+        console=console,
+        video=video,
+        checkpoint=checkpoint,
+        progress=progress,
+    )
+    latest: dict[str, float] = {}
     try:
         if done_frames < cfg.trainer.total_frames:
-            trainer.train()  # its last iteration writes the final checkpoint
+            latest = learn(training_run)  # its last iteration writes the final checkpoint
     finally:
         logger.close()  # TensorBoard's writer thread would otherwise still be writing after we return
-    if trainer.collected_frames >= cfg.trainer.total_frames:
-        mark_finished(run.path, trainer.collected_frames, cfg.trainer.total_frames)
-    returns_log = trainer._modules["component_returns"]
-    log.info("finished: %d frames, last metrics %s", trainer.collected_frames, returns_log.latest)
-    return dict(returns_log.latest)
+    if progress.collected_frames >= cfg.trainer.total_frames:
+        mark_finished(run.path, progress.collected_frames, cfg.trainer.total_frames)
+    log.info("finished: %d frames, last metrics %s", progress.collected_frames, latest)
+    return latest

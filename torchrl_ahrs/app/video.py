@@ -156,7 +156,7 @@ class VideoLog(TrainerHookBase):
 
 
 def register_video_log(
-    trainer: Trainer, cfg: DictConfig, policy, make_envs: Callable[[int, int], EnvBase], run_dir: Path
+    trainer: Trainer | None, cfg: DictConfig, policy, make_envs: Callable[[int, int], EnvBase], run_dir: Path
 ):
     """Registers a :class:`VideoLog` when ``cfg.logger.video_interval`` is a positive number; returns it
     (or None). Also reads ``logger.video_frames`` / ``video_width`` / ``video_height`` when present."""
@@ -174,5 +174,6 @@ def register_video_log(
         height=int(logger_cfg.get("video_height", 120)),
         seed=int(cfg.seed) + 777,
     )
-    hook.register(trainer)
+    if trainer is not None:  # None: only built, for training/loop.py, which calls it once per iteration
+        hook.register(trainer)
     return hook

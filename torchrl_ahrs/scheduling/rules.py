@@ -100,15 +100,6 @@ def normalise_scores(scores: torch.Tensor) -> torch.Tensor:
     return minshift_sum(scores.to(torch.float64)).float()  # n_k = (s_k - min s) / sum (s - min s)
 
 
-def normalise_direct(values: torch.Tensor) -> torch.Tensor:
-    """Proportional normalisation for weights given directly (AHRS-D): ``n_k = x_k / sum_j x_j``.
-
-    Requires non-negative values with a positive sum (checked by the caller's parser).
-    """
-    values = values.to(torch.float64)
-    return (values / values.sum()).float()  # n_k = x_k / sum_j x_j
-
-
 class RuleRepository:
     """An ordered set of rules with 1-based ids, loaded from a sandbox-accepted Python file.
 

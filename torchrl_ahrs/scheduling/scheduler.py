@@ -1,12 +1,14 @@
-"""The RuleScheduler trainer hook: statistics → selector → rule → weights in the advantage estimator.
+"""The RuleScheduler: statistics → selector → rule → weights in the advantage estimator.
 
-Registered on a TorchRL :class:`~torchrl.trainers.Trainer` it runs at two places:
+The training loop (:func:`torchrl_ahrs.training.loop.learn`) calls it at two places, and so does a TorchRL
+:class:`~torchrl.trainers.Trainer` it is registered on (it is a ``TrainerHookBase``):
 
-* ``pre_steps_log`` (every collected batch): the returns of episodes that finished in the batch,
-  ``[M, K]``, go into :class:`~torchrl_ahrs.scheduling.stats.ReturnStatistics`; the current weights
-  and rule id are returned for the trainer's logger.
-* ``post_steps`` (every training iteration): every ``interval`` iterations a decision is made:
-  ``w = mapping(rule(mean [K], var [K], history [L, K], previous_weights [K]))`` is installed with ``estimator.set_weights(w)``.
+* :meth:`~RuleScheduler.observe_batch` (every collected batch; the Trainer's ``pre_steps_log``): the returns of
+  episodes that finished in the batch, ``[M, K]``, go into :class:`~torchrl_ahrs.scheduling.stats.ReturnStatistics`;
+  the weights in force (``weight/<c>``, their one logged name) and the rule id are returned for the logger.
+* :meth:`~RuleScheduler.step` (every training iteration; ``post_steps``): every ``interval`` iterations a decision
+  is made: ``w = mapping(rule(mean [K], var [K], history [L, K], previous_weights [K]))`` is installed with
+  ``estimator.set_weights(w)``.
 
 Guards (each one keeps the current weights and says why in the log):
   * no episode finished since the last decision;
@@ -196,7 +198,7 @@ class RuleScheduler(TrainerHookBase):
         trainer.register_module(name, self)
 
     def observe_batch(self, batch: TensorDictBase) -> dict[str, float]:
-        """Feeds the batch's finished episodes to the statistics; returns scalars for the trainer's log."""
+        """Feeds the batch's finished episodes to the statistics; returns the scalars to log (:meth:`scalars`)."""
         self.frames += batch.numel()
         key = self.episode_reward_key
         returns = finished_episode_returns(batch, self.components, key)  # [M, K]; a missing key is named
@@ -210,8 +212,8 @@ class RuleScheduler(TrainerHookBase):
         return self.scalars()
 
     def scalars(self) -> dict[str, float]:
-        """``scheduler/weight_<c>`` for every component and ``scheduler/rule`` (0 = no rule yet)."""
-        values = {f"scheduler/weight_{c}": float(w) for c, w in zip(self.components, self.weights, strict=True)}
+        """``weight/<c>`` for every component (the weights in force) and ``scheduler/rule`` (0 = no rule yet)."""
+        values = {f"weight/{c}": float(w) for c, w in zip(self.components, self.weights, strict=True)}
         values["scheduler/rule"] = float(self.rule_id or 0)
         return values
 
@@ -314,11 +316,8 @@ class RuleScheduler(TrainerHookBase):
             message,
             suffix,
         )
-        if self.logger is not None and applied:
-            step = self.frames
-            self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=step)
-            for c, w in zip(self.components, self.weights.tolist(), strict=True):
-                self.logger.log_scalar(f"scheduler/decision_weight_{c}", w, step=step)
+        if self.logger is not None and applied:  # the new weights are logged as weight/<c> from the next batch on
+            self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=self.frames)
         if self.decisions_path is not None:
             self.decisions_path.parent.mkdir(parents=True, exist_ok=True)
             entry = {

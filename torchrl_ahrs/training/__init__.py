@@ -1,23 +1,27 @@
-"""PPO pieces: the hybrid loss, the trainer hooks of one iteration, actor/critic builders, loggers."""
+"""PPO pieces: the hybrid loss, the training loop, actor/critic builders, the resumable collector, loggers."""
 
-from torchrl_ahrs.training.hooks import (
-    ComponentReturnLog,
+from torchrl_ahrs.training.loop import (
     FiniteGuard,
-    LinearLRDecay,
-    ObservationNormUpdate,
-    PPOMinibatches,
+    LoopSettings,
+    Progress,
+    TrainingRun,
+    adaptive_kl_lr,
+    epoch_minibatches,
+    learn,
 )
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
 
 __all__ = [
-    "ComponentReturnLog",
     "FiniteGuard",
     "HybridClipPPOLoss",
-    "LinearLRDecay",
-    "ObservationNormUpdate",
-    "PPOMinibatches",
+    "LoopSettings",
+    "Progress",
     "RunningNorm",
+    "TrainingRun",
+    "adaptive_kl_lr",
     "build_actor",
     "build_critic",
+    "epoch_minibatches",
+    "learn",
 ]

@@ -12,7 +12,7 @@ from torchrl_ahrs.envs.common.snapshot import restores_episodes
 
 
 class ResumableCollector(Collector):
-    """``Collector`` that also saves the tensordict it carries from one batch to the next.
+    """``Collector`` that also saves the tensordict it carries from one batch to the next, and not the policy.
 
     Between two batches the collector keeps ``_carrier``: the last ``next`` observation the policy acts
     on, RewardSum's running episode sums, step counters and trajectory ids. TorchRL's ``state_dict``
@@ -21,15 +21,23 @@ class ResumableCollector(Collector):
     loaded continues the episodes exactly where the saved one was. The carrier is saved only when the
     environment's state is (:func:`restores_episodes`): with an environment that cannot be snapshotted
     (EnvPool), the loaded collector keeps the fresh episodes it started at construction.
+
+    The policy's weights are left out: a run checkpoints its actor once, under its own name, and the
+    collector's policy is that actor (or, in worker processes, receives its weights from
+    ``update_policy_weights_()`` after loading).
     """
 
     def state_dict(self) -> OrderedDict:
         state = super().state_dict()
+        state.pop("policy_state_dict", None)  # the actor's own registry entry holds it
         if restores_episodes(self.env):
             state["carrier"] = self._carrier.clone()
         return state
 
     def load_state_dict(self, state_dict: Any, **kwargs) -> None:
+        if "policy_state_dict" not in state_dict and hasattr(self, "_policy_w_state_dict"):
+            # the base class loads a policy state strictly: give it the policy's own (a no-op)
+            state_dict = {**state_dict, "policy_state_dict": self._policy_w_state_dict.state_dict()}
         super().load_state_dict(state_dict, **kwargs)
         carrier = state_dict.get("carrier")
         if carrier is not None:

@@ -45,7 +45,7 @@ class HybridClipPPOLoss(ClipPPOLoss):
     ``loc`` / ``scale`` ``[*B, A]`` stored in the batch, keys set with ``set_keys(loc=, scale=)``) to the current
     one, before any tanh squash (KL is invariant under a bijection of both), averaged over the minibatch and
     detached. rsl_rl's adaptive learning rate reads this from its loss forward pass, and so does
-    :class:`~torchrl_ahrs.training.kl_schedule.AdaptiveKLLR`: no second actor pass per minibatch. Off by default:
+    :func:`~torchrl_ahrs.training.loop.adaptive_kl_lr`: no second actor pass per minibatch. Off by default:
     it costs ~0.1 ms per minibatch (6 % of a [64, 64] loss forward at minibatch 64) that only that rule uses.
 
     Args:

@@ -12,7 +12,8 @@ The data flow, for ``value_norm = make_value_norm("running", K)``::
     critic_net(obs)                  -> v_n   [*B, K]   normalised units (what the loss regresses)
     Denormalize(value_norm)(v_n)     -> v     [*B, K]   v = v_n * sigma + mu   (what GAE bootstraps on)
     WeightedMultiGAE                 -> value_target, state_value in reward units
-    ValueTargetNormalization(batch)  -> both rewritten as (x - mu) / sigma for the loss
+    training/loop.py, every epoch    -> both rewritten as (x - mu) / sigma for the loss (a copy: the
+                                        batch keeps reward units); the statistics absorb each batch once
 
 The statistics are TorchRL's (``RunningValueNorm``: exact running mean/variance as rl_games' running
 mean-std; or ``PopArtValueNorm``'s EMA), with ``shape=K``: one mean and one variance per head. As in
@@ -22,10 +23,7 @@ update is not applied): they are updated once per batch from ~10^3 targets, so t
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import PopArtValueNorm, RunningValueNorm
@@ -91,41 +89,3 @@ def denormalized_critic(critic: TensorDictModule, value_norm: ValueNorm) -> Tens
         in_keys=list(critic.in_keys),
         out_keys=list(critic.out_keys),
     )
-
-
-class ValueTargetNormalization:
-    """Rewrites GAE's ``value_target`` and ``state_value`` ``[*B, K]`` in normalised units.
-
-    Called on every epoch's freshly estimated batch (after GAE, before minibatching). The statistics
-    absorb each batch's targets once, on its first epoch (``new_batch=True``), before normalising, so
-    the targets the critic fits are standardised with statistics that include them.
-
-    Example:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> hook = ValueTargetNormalization(make_value_norm("running", 1))
-        >>> td = TensorDict({"value_target": torch.tensor([[10.0], [30.0]]),
-        ...                  "state_value": torch.tensor([[20.0], [20.0]])}, [2])
-        >>> td = hook(td, new_batch=True)
-        >>> [round(x, 3) for x in td["value_target"].squeeze(-1).tolist()], td["state_value"].abs().max() < 1e-3
-        ([-1.0, 1.0], tensor(True))
-    """
-
-    def __init__(self, value_norm: ValueNorm, target_key: str = "value_target", value_key: str = "state_value"):
-        self.value_norm = value_norm
-        self.target_key, self.value_key = target_key, value_key
-
-    @torch.no_grad()
-    def __call__(self, batch: TensorDictBase, new_batch: bool) -> TensorDictBase:
-        targets = batch.get(self.target_key)
-        if new_batch:
-            self.value_norm.update(targets)
-        batch.set(self.target_key, self.value_norm.normalize(targets))
-        batch.set(self.value_key, self.value_norm.normalize(batch.get(self.value_key)))
-        return batch
-
-    def state_dict(self) -> dict[str, Any]:
-        return self.value_norm.state_dict()
-
-    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        self.value_norm.load_state_dict(state_dict)

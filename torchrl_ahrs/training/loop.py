@@ -1,0 +1,344 @@
+"""One iteration of hybrid-reward PPO, written as one function a reader scrolls through: :func:`learn`.
+
+In the order it runs (the section comments in :func:`learn` carry these numbers)::
+
+    1. collect       the Collector steps N envs x T steps with the current policy              -> batch [N, T]
+                     (the env's RewardComponents wrote ("next", "reward", c), c = 1..K); FiniteGuard stops on NaN
+    2. returns       reward/<c> (mean per step), return/<c> (episodes that ended), the scheduler's statistics
+    3. PPO epochs    per epoch: advantages (WeightedMultiGAE with the current critic), value targets standardised
+                     -> minibatches -> HybridClipPPOLoss -> KL and learning rate -> Adam step, gradient clipped
+    4. normalisers   the observation statistics absorb the batch just trained on; the learning rate anneals;
+                     the collector gets the new policy
+    5. schedule      RuleScheduler.step: every `interval` iterations statistics -> rule -> w_k in the estimator
+    6. log           every scalar of the iteration once, at step = frames collected; console line; video clip
+    7. checkpoint    the run's state registry, every `interval` iterations and after the last
+
+The parts are built by :mod:`torchrl_ahrs.app.iteration` from the Hydra config (or by hand: see
+:class:`TrainingRun`); this module never reads configuration. The loop is TorchRL's pieces composed as
+TorchRL's ``sota-implementations/ppo`` scripts compose them: a ``Collector``, a loss module, a value
+estimator, ``torch.optim`` and a TorchRL ``Logger``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
+from torchrl_ahrs.training.models import RunningNorm
+
+# what the loss (and the KL between the collecting and the current policy) reads from a minibatch, besides
+# the loss's own in_keys; the batch also holds "next", episode accumulators... that are never gathered
+MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """The numbers :func:`learn` reads (the app fills them from ``trainer.*`` and ``ppo.kl_target``; TorchRL's names).
+
+    ``anneal_lr``: ``lr_i = lr_0 (1 - frames_i / total_frames)`` after every iteration; ``kl_target``: instead,
+    :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
+    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped).
+
+    Example:
+        >>> LoopSettings(total_frames=4096, num_minibatches=0)
+        Traceback (most recent call last):
+        ...
+        ValueError: num_minibatches must be at least 1, got 0
+    """
+
+    total_frames: int
+    num_epochs: int = 5
+    num_minibatches: int = 4
+    max_grad_norm: float | None = 1.0
+    anneal_lr: bool = True
+    kl_target: float | None = None
+
+    def __post_init__(self):
+        for name in ("total_frames", "num_epochs", "num_minibatches"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.kl_target is not None and self.kl_target <= 0:
+            raise ValueError(f"the KL target must be positive, got {self.kl_target}")
+
+
+@dataclass
+class Progress:
+    """Frames collected and optimiser steps taken so far: the loop's counters, checkpointed as ``"state"``."""
+
+    collected_frames: int = 0
+    optim_steps: int = 0
+
+    def state_dict(self) -> dict[str, int]:
+        return {"collected_frames": self.collected_frames, "optim_steps": self.optim_steps}
+
+    def load_state_dict(self, state_dict: dict[str, int]) -> None:
+        self.collected_frames = int(state_dict["collected_frames"])
+        self.optim_steps = int(state_dict["optim_steps"])
+
+
+@dataclass
+class TrainingRun:
+    """Everything :func:`learn` iterates with, built and (on resume) loaded by the caller.
+
+    Args:
+        collector: a TorchRL collector yielding batches ``[N, T]`` (``update_policy_weights_``, ``shutdown``).
+        loss: the PPO loss (:class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss`) on the mixed advantage.
+        estimator: :class:`~torchrl_ahrs.value.WeightedMultiGAE`: ``weights [K]``, ``shares [K]``.
+        optimizer: over the loss's parameters.
+        scheduler: a :class:`~torchrl_ahrs.scheduling.RuleScheduler` (``observe_batch``, ``step``, ``close``).
+        logger: a TorchRL logger (``log_scalar``).
+        settings: :class:`LoopSettings`.
+        generator: draws the minibatch permutations (on the batch's device).
+        observation_norms: ``(normaliser, observation key)`` pairs updated after each update.
+        value_norm: the critic heads' TorchRL ``ValueNorm`` (``ppo.value_norm``): the loss regresses value targets
+            standardised with it (:mod:`~torchrl_ahrs.training.value_norm`), GAE reads the critic in reward units.
+        console, video, checkpoint: called once per iteration, in the log and checkpoint sections.
+        progress: the loop's counters (loaded on resume).
+
+    Example:
+        >>> import tempfile, torch
+        >>> from tensordict.nn import NormalParamExtractor, TensorDictModule
+        >>> from torchrl.collectors import Collector
+        >>> from torchrl.envs import TransformedEnv
+        >>> from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+        >>> from torchrl.record.loggers import CSVLogger
+        >>> from torchrl_ahrs import ComponentRewardSum, HybridClipPPOLoss, MultiHeadCritic, RewardComponents
+        >>> from torchrl_ahrs import RandomSelector, RuleScheduler, load_repository
+        >>> from torchrl_ahrs.envs.tasks.point_reach import PointReachEnv
+        >>> names = ["distance", "arrival", "ctrl"]
+        >>> env = TransformedEnv(PointReachEnv(num_envs=4, max_episode_steps=8),
+        ...     RewardComponents(names, term_keys={c: ("info", f"reward_{c}") for c in names}))
+        >>> _ = env.append_transform(ComponentRewardSum([*names, "total"]))
+        >>> actor = ProbabilisticActor(TensorDictModule(torch.nn.Sequential(MLP(6, 4, num_cells=[16]),
+        ...     NormalParamExtractor()), ["observation"], ["loc", "scale"]), in_keys=["loc", "scale"],
+        ...     distribution_class=TanhNormal, return_log_prob=True)
+        >>> critic = TensorDictModule(MultiHeadCritic(6, 3, hidden_sizes=[16]), ["observation"], ["state_value"])
+        >>> loss = HybridClipPPOLoss(actor, critic, components=names).make_value_estimator(gamma=0.99, lmbda=0.95)
+        >>> scheduler = RuleScheduler(loss.value_estimator, selector=RandomSelector(load_repository(), seed=0),
+        ...                           interval=1)
+        >>> run = TrainingRun(Collector(env, actor, frames_per_batch=64, total_frames=128), loss,
+        ...     loss.value_estimator, torch.optim.Adam(loss.parameters(), lr=3e-4), scheduler,
+        ...     CSVLogger("demo", tempfile.mkdtemp()), LoopSettings(total_frames=128, num_epochs=2, num_minibatches=2))
+        >>> metrics = learn(run)
+        >>> run.progress.state_dict(), sorted(metrics)[:3]
+        ({'collected_frames': 128, 'optim_steps': 8}, ['episodes', 'frames_per_second', 'return/arrival'])
+    """
+
+    collector: Any
+    loss: Any
+    estimator: Any
+    optimizer: torch.optim.Optimizer
+    scheduler: Any
+    logger: Any
+    settings: LoopSettings
+    generator: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
+    observation_norms: Sequence[tuple[RunningNorm, str]] = ()
+    value_norm: Any = None
+    console: Callable[[TensorDictBase], Any] | None = None
+    video: Callable[[], None] | None = None
+    checkpoint: Callable[[], None] | None = None
+    progress: Progress = field(default_factory=Progress)
+
+
+def learn(run: TrainingRun) -> dict[str, float]:
+    """Trains until ``run.settings.total_frames`` frames are collected; returns the latest value of every
+    scalar logged (``reward/<c>``, ``return/<c>``, ``weight/<c>``, ``share/<c>``, ``train/<loss term>``, ...)."""
+    settings, progress, optimizer, estimator = run.settings, run.progress, run.optimizer, run.estimator
+    components = list(estimator.components)
+    tracked = components + ([TOTAL] if TOTAL not in components else [])
+    keys = [*run.loss.in_keys, *MINIBATCH_KEYS]
+    params = [param for group in optimizer.param_groups for param in group["params"]]
+    max_norm = math.inf if settings.max_grad_norm is None else settings.max_grad_norm
+    for group in optimizer.param_groups:  # lr_0 of the anneal, saved with the optimiser (torch's schedulers' key)
+        group.setdefault("initial_lr", group["lr"])
+    if settings.kl_target is not None and not getattr(run.loss, "kl", False):
+        raise ValueError("LoopSettings.kl_target reads the loss's 'kl' output: build HybridClipPPOLoss(..., kl=True)")
+    guard = FiniteGuard(components)
+    latest: dict[str, float] = {}
+    last_time = time.perf_counter()
+    try:
+        for batch in run.collector:
+            # ---- 1. collect: batch [N, T], N envs x T steps of the current policy ---------------------------
+            guard(batch)  # one NaN reward would poison every advantage through the GAE recursion
+            progress.collected_frames += batch.numel()
+            frames = progress.collected_frames
+
+            # ---- 2. episode and component returns -----------------------------------------------------------
+            metrics = {f"reward/{name}": batch.get(("next", "reward", name)).mean().item() for name in tracked}
+            returns = finished_episode_returns(batch, tracked)  # [M, K+1]: the M episodes that ended in the batch
+            if returns.shape[0]:
+                metrics["episodes"] = float(returns.shape[0])
+                metrics.update({f"return/{c}": r for c, r in zip(tracked, returns.mean(0).tolist(), strict=True)})
+            metrics.update(run.scheduler.observe_batch(batch))  # into its statistics; weight/<c> in force
+
+            # ---- 3. PPO epochs ------------------------------------------------------------------------------
+            average: TensorDictBase | None = None
+            for epoch in range(settings.num_epochs):
+                with torch.no_grad():
+                    # advantages with the current critic: A_k and value_target [N, T, K], advantage = Σ_k w_k A_k
+                    estimator(batch)
+                    selected = batch.select(*keys, strict=False)  # shares the tensors; the sets below stay out of batch
+                    if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
+                        targets = selected.get("value_target")
+                        if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
+                            run.value_norm.update(targets)
+                        selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
+                        selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
+                for j, minibatch in enumerate(epoch_minibatches(selected, settings.num_minibatches, run.generator)):
+                    progress.optim_steps += 1
+                    losses = run.loss(minibatch)
+                    # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
+                    # collecting to the current policy (rsl_rl's adaptive rule)
+                    if settings.kl_target is not None:
+                        lr = adaptive_kl_lr(
+                            optimizer.param_groups[0]["lr"], losses.get("kl").item(), settings.kl_target
+                        )
+                        for group in optimizer.param_groups:
+                            group["lr"] = lr
+                        losses.set("lr", torch.tensor(lr))
+                    # step: the sum of the loss_* terms, the gradient's global norm clipped to max_grad_norm
+                    sum(value for key, value in losses.items() if key.startswith("loss_")).backward()
+                    losses.set("grad_norm", nn.utils.clip_grad_norm_(params, max_norm).detach())
+                    optimizer.step()
+                    optimizer.zero_grad()
+                    losses = losses.detach()
+                    # train/<term>: a running mean restarted every epoch, so the last epoch's mean is logged (as
+                    # TorchRL's Trainer, which ran this loop before, averaged; so earlier runs' numbers compare)
+                    if j == 0 or average is None:
+                        average = losses
+                    else:  # mean_n = mean_{n-1} (n - 1) / n + x_n / n
+                        average = average.apply(lambda mean, x, n=j + 1: mean * (n - 1) / n + x / n, losses)
+            if average is not None:
+                metrics.update({f"train/{key}": v.mean().item() for key, v in average.items() if v.numel()})
+            shares = estimator.shares.tolist()  # w_k std(A'_k) / Σ_j w_j std(A'_j) of the last epoch's advantages
+            metrics.update({f"share/{name}": share for name, share in zip(components, shares, strict=True)})
+
+            # ---- 4. after the update: observation statistics, learning rate, policy weights -----------------
+            # only now, so the log-probabilities stored at collection stay those of the policy being optimised
+            for norm, key in run.observation_norms:
+                norm.update(batch.get(key))
+            if settings.anneal_lr and settings.kl_target is None:
+                fraction = min(1.0, frames / settings.total_frames)
+                for group in optimizer.param_groups:
+                    group["lr"] = group["initial_lr"] * (1.0 - fraction)  # lr_i = lr_0 (1 - f_i / F)
+            run.collector.update_policy_weights_()  # workers get the new policy (a sync collector shares it)
+
+            # ---- 5. schedule: every `interval` iterations, statistics -> rule -> w_k ---------------------------
+            run.scheduler.step()
+
+            # ---- 6. log -----------------------------------------------------------------------------------------
+            now = time.perf_counter()
+            metrics["frames_per_second"] = batch.numel() / max(now - last_time, 1e-9)  # the whole iteration's rate
+            last_time = now
+            for name, value in metrics.items():
+                run.logger.log_scalar(name, value, step=frames)
+            latest.update(metrics)
+            if run.console is not None:
+                run.console(batch)
+            if run.video is not None:
+                run.video()
+
+            # ---- 7. checkpoint: last, so it holds the state the next iteration starts from -------------------
+            if run.checkpoint is not None:
+                run.checkpoint()
+            if frames >= settings.total_frames:
+                break
+        run.scheduler.close()  # waits for (and applies) a decision still being made in the background
+    finally:
+        run.collector.shutdown()
+    return latest
+
+
+def adaptive_kl_lr(
+    lr: float, kl: float, target: float, min_lr: float = 1e-5, max_lr: float = 1e-2, factor: float = 1.5
+) -> float:
+    """The learning rate after a minibatch whose KL from the collecting policy is ``kl`` (rsl_rl's and rl_games' rule)::
+
+        KL = E_s[ KL( N(mu_old, sigma_old) || N(mu_new, sigma_new) ) ]      (summed over action dims)
+        KL > 2 * target   ->  lr <- max(lr / 1.5, min_lr)
+        KL < target / 2   ->  lr <- min(lr * 1.5, max_lr)
+
+    The factors 2, 1/2 and 1.5 are those of rsl_rl's ``PPO.update`` (``schedule="adaptive"``,
+    ``desired_kl=0.01``, lr bounded to [1e-5, 1e-2]) and rl_games' ``AdaptiveScheduler``
+    (``kl_threshold``: 0.008 in its ``mujoco/ant_envpool.yaml``, bounds [1e-6, 1e-2]). The KL is the ``"kl"``
+    output of :class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss` built with ``kl=True``: the closed form
+    between the Gaussians *before* the tanh squash, as rsl_rl reads it from its loss forward pass (KL is
+    invariant under a bijection applied to both distributions, so it equals the KL of the squashed policies).
+
+    Example:
+        >>> adaptive_kl_lr(1e-3, kl=0.001, target=0.01)  # barely moved: x 1.5
+        0.0015
+        >>> adaptive_kl_lr(9e-3, kl=0.0, target=0.01)  # bounded by max_lr
+        0.01
+    """
+    if target <= 0:
+        raise ValueError(f"the KL target must be positive, got {target}")
+    if kl > 2.0 * target:
+        return max(lr / factor, min_lr)  # too far from the collecting policy: smaller steps
+    if kl < 0.5 * target:
+        return min(lr * factor, max_lr)  # barely moved: larger steps
+    return lr
+
+
+def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: torch.Generator) -> list[TensorDictBase]:
+    """One PPO epoch's minibatches of ``batch [*B]``: every transition exactly once, in a fresh random order
+    (sampling without replacement), as ``num_minibatches`` contiguous views of one gather (a gather per
+    minibatch would cost a TensorDict index per key).
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> batch = TensorDict({"x": torch.arange(16.0).reshape(2, 8)}, [2, 8])
+        >>> minibatches = epoch_minibatches(batch, 4, torch.Generator().manual_seed(0))
+        >>> [len(mb) for mb in minibatches], sorted(torch.cat([mb["x"] for mb in minibatches]).tolist()) == list(range(16))
+        ([4, 4, 4, 4], True)
+    """
+    flat = batch.reshape(-1)
+    order = torch.randperm(flat.shape[0], generator=generator, device=generator.device)
+    sizes = [len(chunk) for chunk in order.chunk(num_minibatches)]
+    # served last first: the order of the Trainer hook this loop replaced, so seeded runs keep their numbers
+    return list(flat[order].split(sizes, 0))[::-1]
+
+
+class FiniteGuard:
+    """Stops training with a clear error when a batch carries NaN or inf in observations or rewards.
+
+    A single non-finite reward poisons every advantage through the GAE recursion and the running
+    observation statistics forever after, so the run is stopped at the first bad batch, naming the
+    entry and how many values were bad, instead of training on garbage.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> guard = FiniteGuard(["a"])
+        >>> batch = TensorDict({"observation": torch.zeros(2, 3),
+        ...                     "next": {"reward": {"a": torch.tensor([[1.0], [float("nan")]])}}}, [2])
+        >>> guard(batch)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        FloatingPointError: 1 non-finite value(s) in ('next', 'reward', 'a') of the collected batch; ...
+    """
+
+    def __init__(self, components: Iterable[str], observation_key: str = "observation"):
+        self.keys = [observation_key, ("next", observation_key)] + [("next", "reward", name) for name in components]
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        for key in self.keys:
+            values = batch.get(key, None)
+            if values is None:
+                continue
+            bad = (~torch.isfinite(values)).sum().item()
+            if bad:
+                raise FloatingPointError(
+                    f"{bad} non-finite value(s) in {key} of the collected batch; the environment produced NaN/inf "
+                    "(check the task's reward terms and physics stability); training stopped before using it"
+                )
+        return batch
