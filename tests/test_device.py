@@ -87,8 +87,13 @@ def test_mjx_environments_follow_the_learner(monkeypatch):
 def test_networks_are_built_on_the_device(task):
     """Every parameter and buffer of actor and critic (observation normalisers included) and the policy's
     action bounds end up on the device; initialised on the CPU first, so the weights equal the CPU build's."""
-    cfg = make_cfg(f"task={task}", "method=ahrs", "model.hidden_sizes=[8,8]", "+task.num_threads=1",
-                   "model.distribution=tanh_normal")  # the squashed policy carries its bounds as tensors
+    cfg = make_cfg(
+        f"task={task}",
+        "method=ahrs",
+        "model.hidden_sizes=[8,8]",
+        "+task.num_threads=1",
+        "model.distribution=tanh_normal",
+    )  # the squashed policy carries its bounds as tensors
     make_envs = env_factory(cfg, check_aux=False)
     torch.manual_seed(0)
     cpu = build_networks(cfg, make_envs)
