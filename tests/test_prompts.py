@@ -8,6 +8,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.app.settings import scheduler_settings
 from torchrl_ahrs.envs.tasks.ant import AntEnv, ant_reward_terms
 from torchrl_ahrs.llm.task_text import AUX_MEANING, reward_code_blocks, source_of
 from torchrl_ahrs.rewards.auxiliary import shipped_aux_path
@@ -48,7 +49,7 @@ def test_selection_prompt_sent_holds_description_meanings_and_reward_code(
     cfg = ant_cfg(llm_server, selector)
     components = [*cfg.task.components, "aux"]
     scheduler = build_scheduler(
-        cfg,
+        scheduler_settings(cfg),
         Estimator(len(components)),
         components,
         tmp_path / "decisions.jsonl",
