@@ -41,6 +41,10 @@ class ScheduleSettings:
     ``interval=None`` derives the interval from the run's length: ``decisions`` decisions per run, as the
     paper's 1 500 epochs with a decision every 100 (= 15 decisions) on every task length. ``rules=None``
     uses the method's shipped repository (:meth:`SelectionSettings.shipped_repository`).
+
+    Example:
+        >>> ScheduleSettings(weight_mapping="plain_sum", clamp=(0.0, 3.0)).mapping().describe()
+        "w_k = 0.5 + s_k, clamped into [0, 3], with s_k the rule's output"
     """
 
     interval: int | None = None
@@ -80,6 +84,10 @@ class SelectionSettings:
     ``selector``: ``constant`` | ``fixed`` (with ``rule``) | ``random`` | ``bandit`` | ``llm`` | ``direct``;
     ``repository``: the shipped repository's name (None: ``hdpg`` when ``rule == "hdpg"``, else ``ahrs``);
     ``initial_weights``: the weights before the first decision (None: ``base_weight`` for every component).
+
+    Example:
+        >>> SelectionSettings(selector="random", seed=3).shipped_repository()
+        'ahrs'
     """
 
     selector: str = "constant"
@@ -105,6 +113,14 @@ class SchedulerSettings:
     ``description``, ``components``, ...); ``aux_path``: the auxiliary reward file shown as component aux's
     code (None: the task's shipped one); ``total_frames`` / ``frames_per_batch``: the run's length, from
     which a null ``schedule.interval`` is derived.
+
+    Example:
+        >>> from torchrl_ahrs.llm.client import LLMConfig
+        >>> settings = SchedulerSettings(ScheduleSettings(decisions=10), total_frames=409_600, frames_per_batch=4096)
+        >>> settings.decision_interval(), settings.llm_is_offline()
+        (10, True)
+        >>> SchedulerSettings(llm=LLMConfig(name="openai", model="openai/gpt-4o")).llm_is_offline()
+        False
     """
 
     schedule: ScheduleSettings = field(default_factory=ScheduleSettings)
