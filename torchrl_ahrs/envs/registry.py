@@ -1,8 +1,9 @@
 """Task registry: a task name → a batched TorchRL environment whose reward is a component tree.
 
 A task is a YAML file in ``conf/task/`` (shipped inside the package as ``torchrl_ahrs.conf``; composed by
-``torchrl_ahrs.app.settings.load_task_config``) and a builder function registered here under the same name. A builder takes the task config, the number
-of environments and a seed, and returns an ``EnvBase`` with batch size ``[num_envs]`` that writes
+``torchrl_ahrs.app.settings.load_task_config``) and a builder function registered here under the same
+name. A builder takes the task config, the number of environments and a seed, and returns an ``EnvBase``
+with batch size ``[num_envs]`` that writes
 ``("next", "reward", c)`` for each ``c`` in ``task.components`` and ``("next", "reward", "total")``.
 """
 
