@@ -11,7 +11,17 @@ API key comes from the environment variable named by ``llm.api_key_env`` (prefer
   ``llm.max_retries`` times with doubling backoff; a 429/503 ``Retry-After`` (or ``retry-after-ms``)
   header is honoured up to ``llm.max_retry_after`` seconds; a longer demand ends the call at once (the
   selector falls back) instead of stalling training. Bad requests (e.g. a prompt over the model's
-  context window) and authentication errors are not retried.
+  context window), authentication errors and a missing key (which litellm reports as a server error,
+  :func:`is_missing_credentials`) are not retried; ``train`` refuses a missing key at start
+  (:mod:`torchrl_ahrs.app.preflight`, ``litellm.validate_environment``).
+
+  Why these retries are ours and not litellm's ``num_retries`` (checked against litellm 1.102): litellm
+  retries inside one ``completion`` call with its own (or the OpenAI SDK's) backoff, so (1) the decision's
+  budget (``llm.decision_budget``), which shrinks each attempt's timeout and refuses a backoff that would
+  overrun it, cannot bound the attempts; (2) the calls log would record one outcome where it now records
+  every attempt's error and the attempt count; (3) the SDK honours a ``Retry-After`` of up to a minute,
+  past ``llm.max_retry_after``. The request itself (provider routing, the timeout of each attempt, token
+  usage and cost) is litellm's.
 
 * **Cache** (``llm.cache_dir``): answers keyed by model + messages; a rerun with the same prompts is free.
 * **Replay** (``llm=replay llm.replay_from=<run dir>``; the application layer turns a run directory into
@@ -176,12 +186,7 @@ class LLMClient:
         return text
 
     def _ask(self, messages: Messages, deadline: float | None = None) -> LLMReply:
-        import litellm  # deferred: slow import, and offline runs never need it
-
-        litellm.telemetry = False
-        litellm.suppress_debug_info = True
-        for name in ("LiteLLM", "LiteLLM Router", "LiteLLM Proxy", "httpx"):
-            logging.getLogger(name).setLevel(logging.WARNING)  # our own log line per call says what happened
+        litellm = import_litellm()
         errors: list[str] = []
         started = time.monotonic()
         server_wait: float | None = None  # the last Retry-After demand
@@ -210,7 +215,7 @@ class LLMClient:
                 name = type(error).__name__
                 errors.append(self._mask(f"{name}: {str(error)[:300]}{root_cause(error)}"))
                 log.warning("LLM call attempt %d failed: %s", attempt + 1, errors[-1])
-                if name in _NON_RETRYABLE:
+                if name in _NON_RETRYABLE or is_missing_credentials(error):
                     break
                 server_wait = retry_after(error)
                 if server_wait is not None and server_wait > self.config.max_retry_after:
@@ -309,6 +314,56 @@ class LLMClient:
             self.calls_path.parent.mkdir(parents=True, exist_ok=True)
             with open(self.calls_path, "a") as handle:
                 handle.write(json.dumps(entry, default=str) + "\n")
+
+
+def credential_problem(config: LLMConfig) -> str | None:
+    """One line naming the environment variable when the provider of ``config.model`` needs a key that is not
+    set (``litellm.validate_environment``: no request is sent), else None. Replay and a config without a model
+    call no provider; with ``api_base`` (a local server) the placeholder key the client sends is enough.
+
+    Example:
+        >>> credential_problem(LLMConfig(model="openai/local", api_base="http://127.0.0.1:8000/v1")) is None
+        True
+    """
+    if not config.model or config.replay_from or config.name == "replay":
+        return None
+    key = LLMClient(config)._api_key()
+    found = import_litellm().validate_environment(model=config.model, api_key=key, api_base=config.api_base)
+    missing = list(found.get("missing_keys") or [])
+    if not missing:
+        return None
+    variable = config.api_key_env or missing[0]
+    return (
+        f"llm.model={config.model} needs the {variable} environment variable, which is not set: "
+        f"export {variable}=..., or use llm=offline (the bandit stands in for the LLM)"
+    )
+
+
+def import_litellm() -> Any:
+    """litellm, imported on first use (slow, and offline runs never need it), quiet: no telemetry, no
+    "Give Feedback" banner, its loggers at WARNING (our own log line per call says what happened)."""
+    import litellm
+
+    litellm.telemetry = False
+    litellm.suppress_debug_info = True
+    for name in ("LiteLLM", "LiteLLM Router", "LiteLLM Proxy", "httpx"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    return litellm
+
+
+def is_missing_credentials(error: BaseException) -> bool:
+    """True for a call that failed because no API key reached the provider: litellm raises the OpenAI SDK's
+    "Missing credentials" as an ``InternalServerError`` (a 5xx, which would be retried), though no retry
+    can supply a key.
+
+    Example:
+        >>> is_missing_credentials(RuntimeError("OpenAIException - Missing credentials. Please pass an `api_key`"))
+        True
+        >>> is_missing_credentials(RuntimeError("Connection error."))
+        False
+    """
+    text = str(error)
+    return "Missing credentials" in text or "api_key client option must be set" in text
 
 
 def retry_after(error: BaseException) -> float | None:

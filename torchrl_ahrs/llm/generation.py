@@ -10,7 +10,7 @@ from typing import Any, cast
 
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.llm.client import LLMConfig
+from torchrl_ahrs.llm.client import LLMConfig, credential_problem
 
 _CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)
 
@@ -25,6 +25,9 @@ def llm_and_task(cfg: Any, command: str) -> tuple[LLMConfig, dict[str, Any]]:
     llm_cfg = LLMConfig.from_cfg(OmegaConf.to_container(cfg.llm, resolve=True))
     if not llm_cfg.model and not llm_cfg.replay_from:
         raise GenerationError(f"{command} needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)")
+    problem = credential_problem(llm_cfg)  # a missing key would fail every attempt: say so once, before any
+    if problem:
+        raise GenerationError(problem)
     return llm_cfg, cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
 
 
