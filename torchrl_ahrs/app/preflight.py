@@ -245,8 +245,8 @@ def check_reward_terms(env: Any, steps: int = 8, atol: float = 1e-4, sums_to_nat
         >>> try:
         ...     check_reward_terms(env)  # ctrl is missing: the two do not make the native reward
         ... except PreflightError as error:
-        ...     print(str(error)[:60])
-        the components distance + arrival do not add up to the nati
+        ...     print(str(error).split(" on the")[0])
+        the components distance + arrival do not add up to the native reward
     """
     from torchrl_ahrs.rewards.components import RewardComponents, TermMissing
 
