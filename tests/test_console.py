@@ -5,7 +5,7 @@ import io
 import torch
 from tensordict import TensorDict
 
-from torchrl_ahrs import FixedSelector, RuleScheduler, load_repository
+from torchrl_ahrs import ConstantSelector, FixedSelector, RuleScheduler, load_repository
 from torchrl_ahrs.training.console import LINE_WIDTH, ConsoleProgress
 from torchrl_ahrs.value.functional import effective_shares
 
@@ -62,3 +62,44 @@ def test_effective_share_is_weight_times_spread():
     advantages = torch.stack([spread, -spread]) / 2**0.5  # [2, K] with std(A_k) = spread_k
     shares = effective_shares(advantages, torch.tensor([2.0, 1.0, 1.0]))
     torch.testing.assert_close(shares, torch.tensor([0.5, 0.5, 0.0]))
+
+
+def test_table_rows_are_one_update_and_the_next_weights_stand_beside_them():
+    """Weights and shares of a row come from one update (the iteration's metrics); a decision taken after it shows as
+    the "next" column, not as the row's weight (which used to pair decision n's weights with update n-1's shares)."""
+    gae, out = Gae(), io.StringIO()
+    repo = load_repository()
+    scheduler = RuleScheduler(gae, selector=FixedSelector(repo, "combined_mean_variance"), interval=1)
+    console = ConsoleProgress(1000, NAMES, gae, scheduler, table_interval=1, stream=out)
+    used = scheduler.scalars()  # what observe_batch returns: the weights this update trains with
+    scheduler.observe_batch(batch(10.0))
+    scheduler.step()  # the decision after the update installs new weights
+    metrics = {**used, **{f"share/{c}": s for c, s in zip(NAMES, [0.5, 0.3, 0.2], strict=True)}}
+    console(batch(10.0), metrics)
+    table = out.getvalue().splitlines()[1:]
+    assert table[0].endswith("| no rule yet -> next rule 3 combined_mean_variance"), table[0]
+    assert table[1].split() == ["component", "return", "weight", "share", "next"]
+    rows = [row.split() for row in table[2:]]
+    assert [row[2] for row in rows] == ["0.500"] * 3  # the update's weights
+    assert [row[3] for row in rows] == ["50.0%", "30.0%", "20.0%"]  # its shares
+    assert [float(row[4]) for row in rows] == [round(w, 3) for w in gae.weights.tolist()]  # what comes next
+    assert gae.weights.tolist() != [0.5] * 3
+
+
+def test_decision_lines_are_short_and_methods_without_a_schedule_have_none(caplog):
+    gae = Gae()
+    repo = load_repository()
+    note = "llm=offline: the bandit selector stands in for the 'llm' selector (no LLM is called)"
+    with caplog.at_level("INFO", logger="torchrl_ahrs.scheduling.scheduler"):
+        scheduler = RuleScheduler(gae, selector=FixedSelector(repo, "combined_mean_variance"), interval=1, note=note)
+        constant = RuleScheduler(Gae(), selector=ConstantSelector(), interval=1)
+        for _ in range(3):
+            for each in (scheduler, constant):
+                each.observe_batch(batch(10.0))
+                each.step()
+    decisions = [r.getMessage() for r in caplog.records if r.getMessage().startswith("decision")]
+    assert len(decisions) == 3  # the fixed rule's three; the constant selector's none
+    assert all(len(line) <= 120 and "stands in" not in line for line in decisions), decisions
+    assert decisions[0].startswith("decision it 1 (fixed): rule 3 combined_mean_variance -> "), decisions[0]
+    assert decisions[-1].endswith(" -> " + " ".join(f"{w:.2f}" for w in gae.weights.tolist()))
+    assert sum(note in r.getMessage() for r in caplog.records) == 1  # the stand-in note: once, at start

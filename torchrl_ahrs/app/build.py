@@ -239,6 +239,7 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torc
             frames_per_batch=frames_per_batch // workers,
             total_frames=trainer_cfg.total_frames,
             collector_class=ResumableCollector,
+            auto_register_policy_transforms=False,  # as the sync collector: the envs carry every transform
         )
     return MultiSyncCollector(
         env_fns,
@@ -247,6 +248,8 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torc
         total_frames=trainer_cfg.total_frames,
         cat_results=0,
         collector_class=ResumableCollector,
+        auto_register_policy_transforms=False,
+        use_buffers=True,  # what TorchRL assumes (with a warning at the first batch) when it is not said
     )
 
 

@@ -306,13 +306,14 @@ class RuleScheduler(TrainerHookBase):
         rule = self.repository[self.rule_id] if (applied and self.rule_id is not None) else None
         if selector != ConstantSelector.name:  # one short line; a method without a schedule has nothing to say
             # the full message, the statistics and the note (said once, at start) go to the decisions file
-            reason = message if len(message) <= 60 else message[:59] + "…"  # e.g. why an LLM call fell back
+            short = message if len(message) <= 60 else message[:59] + "…"  # e.g. why an LLM call fell back
+            reason = f" ({short})" if short else ""
             if applied:
                 what = f"rule {rule.id} {rule.key}" if rule else "direct weights"
                 weights_text = " ".join(f"{w:.2f}" for w in self.weights.tolist())
-                log.info("decision it %d (%s): %s -> %s (%s)", self.iteration, selector, what, weights_text, reason)
+                log.info("decision it %d (%s): %s -> %s%s", self.iteration, selector, what, weights_text, reason)
             else:
-                log.info("decision it %d (%s): weights kept (%s)", self.iteration, selector, reason)
+                log.info("decision it %d (%s): weights kept%s", self.iteration, selector, reason)
         if self.logger is not None and applied:  # the new weights are logged as weight/<c> from the next batch on
             self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=self.frames)
         if self.decisions_path is not None:
