@@ -2,6 +2,7 @@
 
 import io
 
+import pytest
 import torch
 from tensordict import TensorDict
 
@@ -103,3 +104,57 @@ def test_decision_lines_are_short_and_methods_without_a_schedule_have_none(caplo
     assert decisions[0].startswith("decision it 1 (fixed): rule 3 combined_mean_variance -> "), decisions[0]
     assert decisions[-1].endswith(" -> " + " ".join(f"{w:.2f}" for w in gae.weights.tolist()))
     assert sum(note in r.getMessage() for r in caplog.records) == 1  # the stand-in note: once, at start
+
+
+def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys, caplog):
+    """point_reach with the bandit deciding after every iteration: each table row's weight and share are the CSV's
+    weight/<c> and share/<c> of that iteration, its "next" column the following row's weight; the run ends with one
+    ``done:`` line; no FutureWarning comes from our calls into TorchRL."""
+    import csv
+    import warnings
+
+    from conftest import make_cfg
+
+    from torchrl_ahrs.train import train
+
+    cfg = make_cfg(
+        "task=point_reach",
+        "method=ahrs_wo_a",
+        "trainer.total_frames=3072",
+        "trainer.num_envs=16",
+        "trainer.frames_per_batch=1024",
+        "trainer.mini_batch_size=512",
+        "trainer.num_epochs=1",
+        "trainer.table_interval=1",
+        "scheduler.interval=1",
+        "model.hidden_sizes=[16]",
+    )
+    with warnings.catch_warnings(record=True) as caught, caplog.at_level("INFO", logger="torchrl_ahrs.train"):
+        warnings.simplefilter("always", FutureWarning)
+        train(cfg, tmp_path)
+    assert [str(w.message) for w in caught if issubclass(w.category, FutureWarning)] == []
+    lines = capsys.readouterr().err.splitlines()
+    starts = [i for i, line in enumerate(lines) if line.startswith("it ")]
+    assert len(starts) == 3
+    components = ["distance", "arrival", "ctrl"]
+
+    def logged(name):
+        with open(tmp_path / "metrics" / "scalars" / f"{name}.csv") as handle:
+            return {int(float(row[0])): float(row[1]) for row in csv.reader(handle) if row}
+
+    tables = []
+    for start in starts:
+        rows = {row.split()[0]: row.split() for row in lines[start + 2 : start + 2 + len(components)]}
+        tables.append(rows)
+    for iteration, rows in enumerate(tables, start=1):
+        step = 1024 * iteration
+        for name in components:
+            assert float(rows[name][2]) == pytest.approx(logged(f"weight/{name}")[step], abs=5e-4)
+            assert float(rows[name][3].rstrip("%")) == pytest.approx(100 * logged(f"share/{name}")[step], abs=0.05)
+    for before, after in zip(tables[:-1], tables[1:], strict=True):  # a table's "next" is what the next update used
+        for name in components:
+            if len(before[name]) == 5:
+                assert before[name][4] == after[name][2]
+    done = [r.getMessage() for r in caplog.records if r.getMessage().startswith("done: ")]
+    assert len(done) == 1 and done[0].startswith("done: 3072 frames in ") and f"run directory {tmp_path}" in done[0]
+    assert "final return -" in done[0]  # point_reach's return is a negative distance
