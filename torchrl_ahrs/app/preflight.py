@@ -131,7 +131,10 @@ def check_command_line(arguments: Iterable[str], config_package: str = "torchrl_
     parsed = [item for item in map(override_key, arguments) if item is not None]
     if not parsed:
         return
-    keys, groups = shipped_keys(config_package)
+    try:
+        keys, groups = shipped_keys(config_package)
+    except ModuleNotFoundError:  # conf/ not installed as a package (a bare checkout on sys.path): Hydra judges
+        return
     for prefix, key in parsed:
         if key in keys or key in groups:
             continue
