@@ -240,6 +240,7 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torc
             frames_per_batch=frames_per_batch // workers,
             total_frames=trainer_cfg.total_frames,
             collector_class=ResumableCollector,
+            auto_register_policy_transforms=False,  # as the sync collector: the envs carry every transform
         )
     return MultiSyncCollector(
         env_fns,
@@ -248,6 +249,8 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torc
         total_frames=trainer_cfg.total_frames,
         cat_results=0,
         collector_class=ResumableCollector,
+        auto_register_policy_transforms=False,
+        use_buffers=True,  # what TorchRL assumes (with a warning at the first batch) when it is not said
     )
 
 

@@ -8,7 +8,7 @@ import datetime
 import re
 from pathlib import Path
 
-from torchrl_ahrs.llm.client import LLMConfig
+from torchrl_ahrs.llm.client import LLMConfig, credential_problem
 
 _CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)
 
@@ -19,10 +19,10 @@ class GenerationError(RuntimeError):
 
 def require_llm(llm: LLMConfig, command: str) -> LLMConfig:
     """``llm`` itself; refuses an LLM without a model or replay log (``llm=offline``), naming ``command`` and
-    how to give one.
+    how to give one, and a provider whose key is not set (:func:`~torchrl_ahrs.llm.client.credential_problem`).
 
     Example:
-        >>> require_llm(LLMConfig(model="openai/gpt-4o"), "generate_rules").model
+        >>> require_llm(LLMConfig(model="openai/gpt-4o", api_base="http://127.0.0.1:8000/v1"), "generate_rules").model
         'openai/gpt-4o'
         >>> require_llm(LLMConfig(), "generate_rules")
         Traceback (most recent call last):
@@ -31,6 +31,9 @@ def require_llm(llm: LLMConfig, command: str) -> LLMConfig:
     """
     if not llm.model and not llm.replay_from:
         raise GenerationError(f"{command} needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)")
+    problem = credential_problem(llm)  # a missing key would fail every attempt: say so once, before any
+    if problem:
+        raise GenerationError(problem)
     return llm
 
 
