@@ -28,7 +28,8 @@ from bench_env_throughput import time_torchrl_env
 from bench_pipeline import TimedCollector, rates
 from hydra import compose, initialize_config_module
 
-from torchrl_ahrs.envs.registry import load_task_config, make_env, simulation_device
+from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.envs.registry import make_env, simulation_device
 
 
 def env_rate(

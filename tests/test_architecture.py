@@ -103,3 +103,46 @@ def test_no_module_is_oversized():
 def test_the_cycle_finder_finds_a_cycle():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+CONFIG_PACKAGES = ("hydra", "omegaconf")
+
+
+def config_imports(path: Path) -> list[str]:
+    """The hydra / omegaconf modules ``path`` imports, at any depth of its syntax tree (``import_module``
+    and ``__import__`` calls with a literal name included), as ``line: module``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names = [node.module]
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant):
+            function = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+            if function in ("import_module", "__import__") and isinstance(node.args[0].value, str):
+                names = [node.args[0].value]
+        found += [f"{node.lineno}: {name}" for name in names if name.split(".")[0] in CONFIG_PACKAGES]
+    return found
+
+
+LIBRARY = sorted(module for module in MODULES if layer(module) == 0)
+
+
+@pytest.mark.parametrize("module", LIBRARY)
+def test_the_library_never_reads_config(module):
+    """Only the application layer (``app/``) and the entry points read the Hydra tree; the library takes
+    typed settings (e.g. ``scheduling/settings.py``), translated in ``app/settings.py``."""
+    assert config_imports(MODULES[module]) == [], f"{module} imports hydra/omegaconf"
+
+
+def test_the_config_import_finder_finds_imports(tmp_path):
+    source = tmp_path / "m.py"
+    source.write_text(
+        "import os\nfrom omegaconf import OmegaConf\ndef f():\n    import hydra.utils\n"
+        "    importlib.import_module('omegaconf.dictconfig')\nfrom .omegaconf import x\n"
+    )
+    assert config_imports(source) == ["2: omegaconf", "4: hydra.utils", "5: omegaconf.dictconfig"]
+    assert config_imports(MODULES["torchrl_ahrs.app.settings"])  # the translation reads config
+    assert "torchrl_ahrs.scheduling" in LIBRARY and "torchrl_ahrs.envs.registry" in LIBRARY
+    assert not any(module.startswith("torchrl_ahrs.app") for module in LIBRARY)

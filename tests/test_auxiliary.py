@@ -16,7 +16,8 @@ from torchrl.envs.utils import check_env_specs
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs, validate_aux_file
 from torchrl_ahrs.app.config import ConfigError, resolve_components, validate_config
 from torchrl_ahrs.app.runs import read_scalar as read_scalar_file
-from torchrl_ahrs.envs.registry import available_tasks, load_task_config, make_env
+from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.envs.registry import available_tasks, make_env
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
     TOTAL_AUX,

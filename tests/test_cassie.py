@@ -12,8 +12,9 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
+from torchrl_ahrs.app.settings import load_task_config
 from torchrl_ahrs.envs.common import legged_rewards as lr
-from torchrl_ahrs.envs.registry import load_task_config, make_env
+from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.cassie import make_cassie
 from torchrl_ahrs.envs.tasks.cassie_model import (
     JOINT_NAMES,

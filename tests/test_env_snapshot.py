@@ -6,8 +6,9 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 
+from torchrl_ahrs.app.settings import load_task_config
 from torchrl_ahrs.envs.common.snapshot import restores_episodes
-from torchrl_ahrs.envs.registry import load_task_config, make_env
+from torchrl_ahrs.envs.registry import make_env
 
 MUJOCO_TASKS = {"point_reach": ["task.max_episode_steps=7"], "quadcopter": [], "ant": [], "cassie": []}
 

@@ -13,8 +13,9 @@ from torchrl.envs.utils import check_env_specs
 
 pytest.importorskip("envpool")
 
+from torchrl_ahrs.app.settings import load_task_config  # noqa: E402
 from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv  # noqa: E402
-from torchrl_ahrs.envs.registry import load_task_config, make_env  # noqa: E402
+from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 
 ANT_TERMS = ("reward_forward", "reward_ctrl", "reward_contact", "reward_survive")
 MAX_STEPS = 40

@@ -12,7 +12,8 @@ import torch
 
 pytest.importorskip("envpool")
 
-from torchrl_ahrs.envs.registry import load_task_config, make_env  # noqa: E402
+from torchrl_ahrs.app.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 
 
 def _rollout(task: str, steps: int = 60, num_envs: int = 4):

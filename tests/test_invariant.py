@@ -10,6 +10,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.objectives.value import GAE
 
 from torchrl_ahrs.app.build import build_estimator_and_loss, build_networks, env_factory
+from torchrl_ahrs.app.settings import scheduler_settings
 from torchrl_ahrs.scheduling import build_scheduler
 
 
@@ -19,7 +20,9 @@ def _mixed_and_oracle(*overrides: str, steps: int = 48, num_envs: int = 4):
     torch.manual_seed(0)
     networks = build_networks(cfg, make_envs)
     estimator, _ = build_estimator_and_loss(cfg, networks, make_envs.components)
-    build_scheduler(cfg, estimator, make_envs.components)  # installs the method's initial (equal) weights
+    build_scheduler(
+        scheduler_settings(cfg), estimator, make_envs.components
+    )  # installs the method's initial (equal) weights
     env = make_envs(num_envs, 0)
     try:
         with torch.no_grad():

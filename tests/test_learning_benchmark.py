@@ -57,7 +57,8 @@ def test_rsl_rl_adapter_reports_auto_reset_observations_time_outs_and_episode_re
         from rsl_rl_adapter import RslRlVecEnv, StopTraining
     finally:
         sys.path.remove(str(BENCHMARKS))
-    from torchrl_ahrs.envs.registry import load_task_config, make_env
+    from torchrl_ahrs.app.settings import load_task_config
+    from torchrl_ahrs.envs.registry import make_env
 
     rollouts = []
     env = make_env(load_task_config("point_reach"), 3, seed=0, components=["total"])

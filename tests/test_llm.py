@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from omegaconf import OmegaConf
 
 from torchrl_ahrs.app.run_dir import DECISIONS, LLM_CALLS
+from torchrl_ahrs.app.settings import scheduler_settings
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, ReplayMiss
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler, load_repository
@@ -172,7 +173,9 @@ def run_schedule(config, run_dir, rounds=6):
             "scheduler": {"interval": 1, "history_length": 5, "base_weight": 0.5, "rules": None, "blocking": True},
         }
     )
-    scheduler = build_scheduler(cfg, Estimator(), COMPONENTS, run_dir / DECISIONS, llm_calls_path=run_dir / LLM_CALLS)
+    scheduler = build_scheduler(
+        scheduler_settings(cfg), Estimator(), COMPONENTS, run_dir / DECISIONS, llm_calls_path=run_dir / LLM_CALLS
+    )
     schedule = []
     for i in range(rounds):
         feed(scheduler, [float(i), 2.0 - i, (i * 7) % 5])

@@ -9,6 +9,7 @@ from llm_server import free_port
 from omegaconf import OmegaConf
 
 from torchrl_ahrs import LLMRuleSelector, RuleScheduler
+from torchrl_ahrs.app.settings import scheduler_settings
 from torchrl_ahrs.scheduling import build_selector, load_repository
 from torchrl_ahrs.scheduling.selectors import DecisionContext, Summary
 
@@ -42,7 +43,7 @@ def context():
 def test_a_model_under_llm_offline_fails_at_start_in_one_line():
     cfg = OmegaConf.create({"method": {"selector": "llm"}, "llm": {"name": "offline", "model": "openai/gpt-4o"}})
     with pytest.raises(ValueError, match=r"^llm.model=openai/gpt-4o is set but llm=offline never calls") as error:
-        build_selector(cfg, load_repository(), COMPONENTS, None)
+        build_selector(scheduler_settings(cfg), load_repository(), COMPONENTS, None)
     assert "\n" not in str(error.value)
 
 
@@ -87,6 +88,22 @@ def test_build_scheduler_with_an_llm_from_a_plain_dict(llm_server):
         "method": {"selector": "llm"},
         "llm": {"name": "openai", "model": "openai/x", "api_base": llm_server.api_base},
     }
-    scheduler = build_scheduler(cfg, Estimator())
+    scheduler = build_scheduler(scheduler_settings(cfg), Estimator())
     assert scheduler.selector.name == "llm" and scheduler.selector.client.config.model == "openai/x"
     assert (scheduler.selector.interval, scheduler.selector.base_weight) == (100, 0.5)  # the scheduler's, once
+
+
+def test_build_scheduler_with_an_llm_from_typed_settings_alone(llm_server, tmp_path):
+    from torchrl_ahrs.llm.client import LLMConfig
+    from torchrl_ahrs.scheduling import SchedulerSettings, ScheduleSettings, SelectionSettings, build_scheduler
+
+    settings = SchedulerSettings(
+        schedule=ScheduleSettings(interval=4, base_weight=0.25),
+        selection=SelectionSettings(selector="direct"),
+        llm=LLMConfig(name="openai", model="openai/typed", api_base=llm_server.api_base, backoff=0.0),
+        task={"name": "toy", "description": "walk", "components": COMPONENTS},
+    )
+    scheduler = build_scheduler(settings, Estimator(), llm_calls_path=tmp_path / "calls.jsonl")
+    assert scheduler.selector.name == "direct" and scheduler.selector.client.config.model == "openai/typed"
+    assert (scheduler.selector.interval, scheduler.selector.base_weight) == (4, 0.25)
+    assert scheduler.selector.task["description"] == "walk"

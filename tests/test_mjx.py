@@ -25,8 +25,9 @@ import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
+from torchrl_ahrs.app.settings import load_task_config  # noqa: E402
 from torchrl_ahrs.envs.backends import mjx as mjx_backend  # noqa: E402
-from torchrl_ahrs.envs.registry import get_builder, load_task_config, make_env  # noqa: E402
+from torchrl_ahrs.envs.registry import get_builder, make_env  # noqa: E402
 
 needs_jax = pytest.mark.skipif(
     not mjx_backend.mjx_available(), reason='JAX / mujoco-mjx absent: pip install -e ".[mjx]" runs these tests'

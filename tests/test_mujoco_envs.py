@@ -9,8 +9,9 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
+from torchrl_ahrs.app.settings import load_task_config
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
-from torchrl_ahrs.envs.registry import load_task_config, make_env
+from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.ant import AntEnv
 from torchrl_ahrs.envs.tasks.quadcopter import QuadcopterEnv
 

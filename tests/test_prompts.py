@@ -8,6 +8,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from torchrl_ahrs.app.settings import load_task_config, scheduler_settings
 from torchrl_ahrs.envs.tasks.ant import AntEnv, ant_reward_terms
 from torchrl_ahrs.llm.task_text import AUX_MEANING, reward_code_blocks, source_of
 from torchrl_ahrs.rewards.auxiliary import shipped_aux_path
@@ -25,7 +26,7 @@ class Estimator:
 
 
 def ant_cfg(server, selector="llm"):
-    task = OmegaConf.load(CONF / "task" / "ant.yaml")
+    task = load_task_config("ant")
     return OmegaConf.create(
         {
             "seed": 0,
@@ -48,7 +49,7 @@ def test_selection_prompt_sent_holds_description_meanings_and_reward_code(
     cfg = ant_cfg(llm_server, selector)
     components = [*cfg.task.components, "aux"]
     scheduler = build_scheduler(
-        cfg,
+        scheduler_settings(cfg),
         Estimator(len(components)),
         components,
         tmp_path / "decisions.jsonl",
@@ -72,8 +73,8 @@ def test_selection_prompt_sent_holds_description_meanings_and_reward_code(
 
 
 def test_every_shipped_task_documents_each_component():
-    for path in sorted((CONF / "task").glob("*.yaml")):
-        task = OmegaConf.to_container(OmegaConf.load(path))
+    for path in sorted(p for p in (CONF / "task").glob("*.yaml") if not p.name.startswith("_")):  # _: bases
+        task = OmegaConf.to_container(load_task_config(path.stem), resolve=True)
         meanings = task.get("component_descriptions") or {}
         assert set(meanings) == set(task["components"]), path.name
         assert all(meanings.values()), path.name

@@ -24,6 +24,6 @@ def test_a_rerun_sweep_skips_finished_runs_and_the_report_needs_no_checkpoint(tm
         assert (tmp_path / name / "seed_0" / "finished.json").is_file()
     (tmp_path / "mcppo/seed_0/checkpoint.pt").unlink()  # committed results carry no checkpoint
     again = subprocess.run(args, check=True, capture_output=True, text=True, timeout=300)
-    assert again.stdout.count("is finished (8192 of 8192 frames); nothing to do") == 2, again.stdout[-2000:]
+    assert again.stdout.count("is finished (8192 of 8192 frames), nothing to do") == 2, again.stdout[-2000:]
     assert (tmp_path / "ppo/seed_0/metrics/scalars/return/total.csv").read_text() == rows
     assert {run.method: run.status for run in load_sweep(tmp_path)} == {"ppo": "ok", "mcppo": "ok"}

@@ -7,7 +7,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.scheduling import RuleScheduler, decision_interval, load_repository, weight_mapping
+from torchrl_ahrs.app.settings import schedule_settings, scheduler_settings
+from torchrl_ahrs.scheduling import RuleScheduler, load_repository
 from torchrl_ahrs.scheduling.mapping import WeightMapping
 from torchrl_ahrs.scheduling.selectors import FixedSelector
 from torchrl_ahrs.value.functional import effective_shares
@@ -58,7 +59,12 @@ def test_scheduler_uses_the_configured_mapping():
     cfg = OmegaConf.create({"scheduler": {"weight_mapping": "plain_sum", "base_weight": 0.5, "clamp": [0.0, 3.0]}})
     estimator = Estimator()
     scheduler = RuleScheduler(
-        estimator, ["a", "b"], repo, FixedSelector(repo, "mean_returns_only"), interval=1, mapping=weight_mapping(cfg)
+        estimator,
+        ["a", "b"],
+        repo,
+        FixedSelector(repo, "mean_returns_only"),
+        interval=1,
+        mapping=schedule_settings(cfg).mapping(),
     )
     scheduler.statistics.add(torch.tensor([[0.25, 9.0]]))
     scheduler.step()
@@ -72,9 +78,9 @@ def test_decision_interval_gives_at_least_the_requested_decisions():
              "scheduler": {"interval": None, "decisions": decisions}}
         )  # fmt: skip
         iterations = frames // per_batch
-        assert iterations // decision_interval(cfg) >= min(decisions, iterations)
+        assert iterations // scheduler_settings(cfg).decision_interval() >= min(decisions, iterations)
     fixed = OmegaConf.create({"scheduler": {"interval": 7, "decisions": 15}})
-    assert decision_interval(fixed) == 7
+    assert scheduler_settings(fixed).decision_interval() == 7
 
 
 def test_effective_shares_oracle():

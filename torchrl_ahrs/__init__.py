@@ -4,7 +4,7 @@ The pieces, each usable on its own in a TorchRL pipeline, are importable from he
 
     from torchrl_ahrs import (RewardComponents, ComponentRewardSum, with_info_reward_terms,
                               MultiHeadCritic, WeightedMultiGAE, HybridClipPPOLoss,
-                              RuleScheduler, build_scheduler, BanditSelector, ...)
+                              RuleScheduler, build_scheduler, SchedulerSettings, BanditSelector, ...)
 
 * :class:`RewardComponents` — the reward as a key tree of named components (``env.reward_key`` stays
   the native total ``("reward", "total")``); :class:`ComponentRewardSum` — their episode returns;
@@ -15,7 +15,8 @@ The pieces, each usable on its own in a TorchRL pipeline, are importable from he
 * :class:`RuleScheduler` — a trainer hook that reschedules the weights, with the selectors
   :class:`ConstantSelector`, :class:`FixedSelector`, :class:`RandomSelector`, :class:`BanditSelector`,
   :class:`LLMRuleSelector` (AHRS) and :class:`DirectWeightSelector` (AHRS-D), and the
-  :class:`WeightMapping` from a rule's scores to the weights.
+  :class:`WeightMapping` from a rule's scores to the weights; :func:`build_scheduler` builds one from typed
+  :class:`SchedulerSettings` (:class:`ScheduleSettings`, :class:`SelectionSettings`).
 
 Names are resolved on first use, so ``import torchrl_ahrs`` stays cheap (no torch, MuJoCo or litellm).
 """
@@ -37,6 +38,9 @@ _EXPORTS = {
     "HybridClipPPOLoss": "torchrl_ahrs.training",
     "RuleScheduler": "torchrl_ahrs.scheduling",
     "build_scheduler": "torchrl_ahrs.scheduling",
+    "SchedulerSettings": "torchrl_ahrs.scheduling",
+    "ScheduleSettings": "torchrl_ahrs.scheduling",
+    "SelectionSettings": "torchrl_ahrs.scheduling",
     "load_repository": "torchrl_ahrs.scheduling",
     "ConstantSelector": "torchrl_ahrs.scheduling",
     "FixedSelector": "torchrl_ahrs.scheduling",
@@ -59,6 +63,9 @@ __all__ = [  # literal, so linters and type checkers see the public names
     "RandomSelector",
     "RewardComponents",
     "RuleScheduler",
+    "ScheduleSettings",
+    "SchedulerSettings",
+    "SelectionSettings",
     "WeightMapping",
     "WeightedMultiGAE",
     "__version__",
@@ -77,6 +84,9 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time names load lazily b
         LLMRuleSelector,
         RandomSelector,
         RuleScheduler,
+        SchedulerSettings,
+        ScheduleSettings,
+        SelectionSettings,
         WeightMapping,
         build_scheduler,
         load_repository,

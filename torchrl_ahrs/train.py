@@ -22,15 +22,18 @@ from omegaconf import DictConfig
 
 from torchrl_ahrs.app.config import ConfigError, load_saved_config, refuse_renamed
 from torchrl_ahrs.app.iteration import train
+from torchrl_ahrs.app.preflight import check_command_line
 from torchrl_ahrs.app.run_dir import RunDirectory
 
 __all__ = ["main", "train"]
 
 
 def main() -> None:
-    """Refuses renamed keys on the command line (Hydra would only say "not in struct"), then runs."""
+    """Refuses renamed keys, and keys no shipped config has (with or without ``+``), on the command line
+    (Hydra would say "not in struct" in five lines, or accept ``+key`` and store it), then runs."""
     try:
         refuse_renamed(argument.split("=", 1)[0] for argument in sys.argv[1:] if "=" in argument)
+        check_command_line(sys.argv[1:])
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         sys.exit(2)

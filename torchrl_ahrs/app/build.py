@@ -24,6 +24,7 @@ from torchrl_ahrs.app.auxiliary import TransformFactory, auxiliary_transform
 from torchrl_ahrs.app.config import resolve_components
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
+from torchrl_ahrs.app.settings import scheduler_settings
 from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
 from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
@@ -239,6 +240,7 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torc
             frames_per_batch=frames_per_batch // workers,
             total_frames=trainer_cfg.total_frames,
             collector_class=ResumableCollector,
+            auto_register_policy_transforms=False,  # as the sync collector: the envs carry every transform
         )
     return MultiSyncCollector(
         env_fns,
@@ -247,6 +249,8 @@ def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torc
         total_frames=trainer_cfg.total_frames,
         cat_results=0,
         collector_class=ResumableCollector,
+        auto_register_policy_transforms=False,
+        use_buffers=True,  # what TorchRL assumes (with a warning at the first batch) when it is not said
     )
 
 
@@ -261,7 +265,7 @@ def build_checked_scheduler(
         cfg.llm.replay_from = calls_log(cfg.llm.replay_from)
     decisions, llm_calls = (run.decisions, run.llm_calls) if run is not None else (None, None)
     try:
-        scheduler = build_scheduler(cfg, estimator, components, decisions, logger, llm_calls)
+        scheduler = build_scheduler(scheduler_settings(cfg), estimator, components, decisions, logger, llm_calls)
     except (ValueError, KeyError, FileNotFoundError, ImportError, SyntaxError) as error:
         raise ConfigError(f"scheduler setup failed: {error}") from error
     num_components = len(components)

@@ -36,10 +36,10 @@ from omegaconf import DictConfig
 from torchrl_ahrs.app.aux_rounds import Candidate, choose, scores_text, train_round, write_index
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
 from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
-from torchrl_ahrs.common.config_access import select
+from torchrl_ahrs.app.settings import generation_output_dir, llm_and_task, select
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt, training_feedback_message
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
-from torchrl_ahrs.llm.generation import extract_code_blocks, generation_output_dir, llm_and_task
+from torchrl_ahrs.llm.generation import extract_code_blocks
 from torchrl_ahrs.llm.task_text import environment_code, reward_code_blocks
 from torchrl_ahrs.rewards.auxiliary import AUX_FUNCTION, load_aux_function
 from torchrl_ahrs.sandbox import check_source, validate_in_child

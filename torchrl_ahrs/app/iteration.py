@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import random
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,7 @@ from torchrl_ahrs.app.checkpoint import (
 )
 from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.app.preflight import check_config, check_task_rewards
 from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
@@ -53,11 +55,13 @@ log = logging.getLogger("torchrl_ahrs.train")
 def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     """Runs one training job (or continues it, when ``cfg.resume`` names ``run_dir``, which holds a
     checkpoint) and returns the last logged metrics."""
+    started = time.monotonic()
+    check_config(cfg)  # the start-up checks: before anything is built or written (app/preflight.py)
     validate_config(cfg)
     run = RunDirectory(run_dir).mkdir()
     done = collected_frames(run.path) if cfg.get("resume") else None
     if done is not None and done >= cfg.trainer.total_frames:
-        log.info("%s is finished (%d of %d frames); nothing to do", run_dir, done, cfg.trainer.total_frames)
+        log.info("%s is finished (%d of %d frames), nothing to do", run_dir, done, cfg.trainer.total_frames)
         return {}
     resumed = load_checkpoint(run.checkpoint) if cfg.get("resume") else None
     if resumed is None:
@@ -74,6 +78,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     # + the sandbox-checked auxiliary reward when the method uses one
     make_envs = env_factory(cfg, device=devices.envs)
     components = make_envs.components
+    # a misspelt term, or components that miss part of the native reward, fail here, on a few real steps
+    check_task_rewards(make_envs, int(cfg.seed), sums_to_native=bool(cfg.task.get("components_sum_to_native", True)))
     log.info("task %s, method %s, K=%d components %s", cfg.task.name, cfg.method.name, len(components), components)
     log.info("learner on %s, environments on %s", devices.learner, devices.envs)
     physics = simulation_device(cfg.task) if cfg.task.get("backend", "cpu") == "mjx" else devices.envs
@@ -177,5 +183,18 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         logger.close()  # TensorBoard's writer thread would otherwise still be writing after we return
     if progress.collected_frames >= cfg.trainer.total_frames:
         mark_finished(run.path, progress.collected_frames, cfg.trainer.total_frames)
-    log.info("finished: %d frames, last metrics %s", progress.collected_frames, latest)
+    final_return = latest.get("return/total")
+    log.info(
+        "done: %d frames in %s, final return %s, run directory %s",
+        progress.collected_frames,
+        _clock(time.monotonic() - started),
+        "n/a (no episode ended)" if final_return is None else f"{final_return:.4g}",
+        run.path,
+    )
     return latest
+
+
+def _clock(seconds: float) -> str:
+    minutes, secs = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"

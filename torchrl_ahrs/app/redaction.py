@@ -119,11 +119,17 @@ class RedactHydraOutput(Callback):
         if hydra.output_subdir is None:
             return
         folder = Path(hydra.runtime.output_dir) / hydra.output_subdir
-        secrets = secret_values(config, hydra.overrides.task)
+        secrets = secret_values(config, _raw_overrides(hydra))
         changed = redact_files([folder / name for name in HYDRA_FILES], secrets)
         if changed:
             log.info("redacted %d secret value(s) in %s", len(secrets), ", ".join(path.name for path in changed))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        secrets = secret_values(config, config.hydra.overrides.task)
+        secrets = secret_values(config, _raw_overrides(config.hydra))
         redact_files([Path(config.hydra.sweep.dir) / MULTIRUN], secrets)
+
+
+def _raw_overrides(hydra: Any) -> list[str]:
+    """The command-line overrides as typed: ``seed=${oc.env:NOPE}`` is a string here, not an interpolation
+    to resolve (which would fail before the run's own one-line error)."""
+    return [str(item) for item in OmegaConf.to_container(hydra.overrides.task, resolve=False)]  # type: ignore[union-attr]

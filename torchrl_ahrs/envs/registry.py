@@ -1,8 +1,9 @@
 """Task registry: a task name → a batched TorchRL environment whose reward is a component tree.
 
-A task is a YAML file in ``conf/task/`` (shipped inside the package as ``torchrl_ahrs.conf``) and a
-builder function registered here under the same name. A builder takes the task config, the number
-of environments and a seed, and returns an ``EnvBase`` with batch size ``[num_envs]`` that writes
+A task is a YAML file in ``conf/task/`` (shipped inside the package as ``torchrl_ahrs.conf``; composed by
+``torchrl_ahrs.app.settings.load_task_config``) and a builder function registered here under the same
+name. A builder takes the task config, the number of environments and a seed, and returns an ``EnvBase``
+with batch size ``[num_envs]`` that writes
 ``("next", "reward", c)`` for each ``c`` in ``task.components`` and ``("next", "reward", "total")``.
 """
 
@@ -118,7 +119,7 @@ def make_env(
         (:mod:`torchrl_ahrs.envs.common.snapshot`).
 
     Example:
-        >>> from torchrl_ahrs.envs import load_task_config, make_env
+        >>> from torchrl_ahrs.app.settings import load_task_config
         >>> env = make_env(load_task_config("ant_v5"), num_envs=2)
         >>> env.rollout(3)["next", "reward", "forward"].shape
         torch.Size([2, 3, 1])
@@ -146,12 +147,3 @@ def make_env(
     env.append_transform(ComponentRewardSum(tracked))
     env.append_transform(BaseEnvSnapshot())  # env.state_dict() holds the simulator's state when it has one
     return env
-
-
-def load_task_config(name: str, overrides: Sequence[str] = ()) -> Any:
-    """Composes ``conf/task/<name>.yaml`` from the installed package (Hydra's compose API)."""
-    from hydra import compose, initialize_config_module
-
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"task={name}", *overrides])
-    return cfg.task

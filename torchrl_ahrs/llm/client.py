@@ -11,7 +11,17 @@ API key comes from the environment variable named by ``llm.api_key_env`` (prefer
   ``llm.max_retries`` times with doubling backoff; a 429/503 ``Retry-After`` (or ``retry-after-ms``)
   header is honoured up to ``llm.max_retry_after`` seconds; a longer demand ends the call at once (the
   selector falls back) instead of stalling training. Bad requests (e.g. a prompt over the model's
-  context window) and authentication errors are not retried.
+  context window), authentication errors and a missing key (which litellm reports as a server error,
+  :func:`is_missing_credentials`) are not retried; ``train`` refuses a missing key at start
+  (:mod:`torchrl_ahrs.app.preflight`, ``litellm.validate_environment``).
+
+  Why these retries are ours and not litellm's ``num_retries`` (checked against litellm 1.102): litellm
+  retries inside one ``completion`` call with its own (or the OpenAI SDK's) backoff, so (1) the decision's
+  budget (``llm.decision_budget``), which shrinks each attempt's timeout and refuses a backoff that would
+  overrun it, cannot bound the attempts; (2) the calls log would record one outcome where it now records
+  every attempt's error and the attempt count; (3) the SDK honours a ``Retry-After`` of up to a minute,
+  past ``llm.max_retry_after``. The request itself (provider routing, the timeout of each attempt, token
+  usage and cost) is litellm's.
 
 * **Cache** (``llm.cache_dir``): answers keyed by model + messages; a rerun with the same prompts is free.
 * **Replay** (``llm=replay llm.replay_from=<run dir>``; the application layer turns a run directory into
@@ -34,11 +44,24 @@ import time
 from collections import defaultdict, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from email.utils import parsedate_to_datetime
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
+
+from torchrl_ahrs.llm.provider import import_litellm, is_missing_credentials, retry_after, root_cause  # noqa: E402
+
+__all__ = [
+    "FatalSelectorError",
+    "LLMClient",
+    "LLMConfig",
+    "LLMReply",
+    "ReplayMiss",
+    "credential_problem",
+    "prompt_hash",
+    "retry_after",
+    "root_cause",
+]
 
 log = logging.getLogger(__name__)
 Messages = list[dict[str, str]]
@@ -176,12 +199,7 @@ class LLMClient:
         return text
 
     def _ask(self, messages: Messages, deadline: float | None = None) -> LLMReply:
-        import litellm  # deferred: slow import, and offline runs never need it
-
-        litellm.telemetry = False
-        litellm.suppress_debug_info = True
-        for name in ("LiteLLM", "LiteLLM Router", "LiteLLM Proxy", "httpx"):
-            logging.getLogger(name).setLevel(logging.WARNING)  # our own log line per call says what happened
+        litellm = import_litellm()
         errors: list[str] = []
         started = time.monotonic()
         server_wait: float | None = None  # the last Retry-After demand
@@ -210,7 +228,7 @@ class LLMClient:
                 name = type(error).__name__
                 errors.append(self._mask(f"{name}: {str(error)[:300]}{root_cause(error)}"))
                 log.warning("LLM call attempt %d failed: %s", attempt + 1, errors[-1])
-                if name in _NON_RETRYABLE:
+                if name in _NON_RETRYABLE or is_missing_credentials(error):
                     break
                 server_wait = retry_after(error)
                 if server_wait is not None and server_wait > self.config.max_retry_after:
@@ -311,62 +329,24 @@ class LLMClient:
                 handle.write(json.dumps(entry, default=str) + "\n")
 
 
-def retry_after(error: BaseException) -> float | None:
-    """Seconds a failed response asks the client to wait (``retry-after-ms`` or ``Retry-After`` as
-    seconds or an HTTP date), from the headers litellm attaches to its exception; None if absent.
+def credential_problem(config: LLMConfig) -> str | None:
+    """One line naming the environment variable when the provider of ``config.model`` needs a key that is not
+    set (``litellm.validate_environment``: no request is sent), else None. Replay and a config without a model
+    call no provider; with ``api_base`` (a local server) the placeholder key the client sends is enough.
 
     Example:
-        >>> class Limited(Exception):
-        ...     litellm_response_headers = {"retry-after": "2"}
-        >>> retry_after(Limited()), retry_after(ValueError())
-        (2.0, None)
+        >>> credential_problem(LLMConfig(model="openai/local", api_base="http://127.0.0.1:8000/v1")) is None
+        True
     """
-    for source in (
-        getattr(error, "litellm_response_headers", None),
-        getattr(getattr(error, "response", None), "headers", None),
-        getattr(error, "headers", None),
-    ):
-        if not source:
-            continue
-        headers = {str(key).lower(): str(value) for key, value in dict(source).items()}
-        try:
-            if "retry-after-ms" in headers:
-                return max(0.0, float(headers["retry-after-ms"]) / 1000)  # ms -> s
-            if "retry-after" in headers:
-                value = headers["retry-after"].strip()
-                if value.replace(".", "", 1).isdigit():
-                    return float(value)
-                moment = parsedate_to_datetime(value)  # an HTTP date: wait until then
-                return max(0.0, moment.timestamp() - time.time())
-        except (TypeError, ValueError, OverflowError):
-            continue  # an unreadable header is no demand
-    return None
-
-
-def root_cause(error: BaseException) -> str:
-    """`` [cause: <innermost exception>]`` when the chain under ``error`` ends in a different exception
-    (litellm reports a refused connection, a reset and a truncated body all as "InternalServerError"),
-    else ''.
-
-    Example:
-        >>> try:
-        ...     try:
-        ...         raise ConnectionResetError(104, "Connection reset by peer")
-        ...     except OSError as inner:
-        ...         raise RuntimeError("Connection error.") from inner
-        ... except RuntimeError as outer:
-        ...     print(root_cause(outer))
-         [cause: ConnectionResetError: [Errno 104] Connection reset by peer]
-    """
-    innermost, seen = error, {id(error)}
-    while True:
-        below = innermost.__cause__
-        if below is None and not innermost.__suppress_context__:  # as tracebacks do ("from None" hides it)
-            below = innermost.__context__
-        if below is None or id(below) in seen:
-            break
-        innermost = below
-        seen.add(id(below))
-    if innermost is error:
-        return ""
-    return f" [cause: {type(innermost).__name__}: {str(innermost)[:200]}]"
+    if not config.model or config.replay_from or config.name == "replay":
+        return None
+    key = LLMClient(config)._api_key()
+    found = import_litellm().validate_environment(model=config.model, api_key=key, api_base=config.api_base)
+    missing = list(found.get("missing_keys") or [])
+    if not missing:
+        return None
+    variable = config.api_key_env or missing[0]
+    return (
+        f"llm.model={config.model} needs the {variable} environment variable, which is not set: "
+        f"export {variable}=..., or use llm=offline (the bandit stands in for the LLM)"
+    )

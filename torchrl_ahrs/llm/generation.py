@@ -1,16 +1,14 @@
-"""What the generator commands (``generate_rules``, ``generate_aux``) share: their LLM and task from the
-config, the code blocks of an answer, and where they write what the LLM produced."""
+"""What the generator commands (``generate_rules``, ``generate_aux``) share: the check that they have an LLM,
+the code blocks of an answer, and where they write what the LLM produced (``torchrl_ahrs.app.settings`` reads
+these settings from the composed config)."""
 
 from __future__ import annotations
 
 import datetime
 import re
 from pathlib import Path
-from typing import Any, cast
 
-from omegaconf import OmegaConf
-
-from torchrl_ahrs.llm.client import LLMConfig
+from torchrl_ahrs.llm.client import LLMConfig, credential_problem
 
 _CODE_BLOCK = re.compile(r"```[ \t]*(?:python|py)?[ \t]*\n(.*?)```", re.DOTALL)
 
@@ -19,13 +17,24 @@ class GenerationError(RuntimeError):
     """A generator command that cannot ask its LLM; the message says why."""
 
 
-def llm_and_task(cfg: Any, command: str) -> tuple[LLMConfig, dict[str, Any]]:
-    """The LLM settings and the resolved task section of a composed config; refuses a config without an
-    LLM (``llm=offline``), naming ``command`` and how to give one."""
-    llm_cfg = LLMConfig.from_cfg(OmegaConf.to_container(cfg.llm, resolve=True))
-    if not llm_cfg.model and not llm_cfg.replay_from:
+def require_llm(llm: LLMConfig, command: str) -> LLMConfig:
+    """``llm`` itself; refuses an LLM without a model or replay log (``llm=offline``), naming ``command`` and
+    how to give one, and a provider whose key is not set (:func:`~torchrl_ahrs.llm.client.credential_problem`).
+
+    Example:
+        >>> require_llm(LLMConfig(model="openai/gpt-4o", api_base="http://127.0.0.1:8000/v1"), "generate_rules").model
+        'openai/gpt-4o'
+        >>> require_llm(LLMConfig(), "generate_rules")
+        Traceback (most recent call last):
+        ...
+        torchrl_ahrs.llm.generation.GenerationError: generate_rules needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)
+    """
+    if not llm.model and not llm.replay_from:
         raise GenerationError(f"{command} needs an LLM: pass llm=openai (or llm.model=... llm.api_base=...)")
-    return llm_cfg, cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
+    problem = credential_problem(llm)  # a missing key would fail every attempt: say so once, before any
+    if problem:
+        raise GenerationError(problem)
+    return llm
 
 
 def extract_code_blocks(text: str) -> list[str]:
@@ -39,20 +48,19 @@ def extract_code_blocks(text: str) -> list[str]:
     return blocks if blocks else [text]
 
 
-def generation_output_dir(cfg: Any, kind: str) -> Path:
-    """``cfg.output`` if given, else ``outputs/<kind>/<task>-<model>-<time>``; created.
+def generation_output_dir(output: str | Path | None, kind: str, task_name: str, model: str | None) -> Path:
+    """``output`` if given, else ``outputs/<kind>/<task>-<model>-<time>``; created.
 
     Example:
         >>> import tempfile
         >>> out = Path(tempfile.mkdtemp()) / "here"
-        >>> generation_output_dir(OmegaConf.create({"output": str(out)}), "rules") == out and out.is_dir()
+        >>> generation_output_dir(out, "rules", "ant", "openai/gpt-4o") == out and out.is_dir()
         True
     """
-    output = OmegaConf.select(cfg, "output")
     if output is None:
-        model = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(cfg.llm.model))  # a model string may hold "/" or ":"
+        model_text = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(model))  # a model string may hold "/" or ":"
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-        output = Path("outputs") / kind / f"{cfg.task.name}-{model}-{stamp}"
+        output = Path("outputs") / kind / f"{task_name}-{model_text}-{stamp}"
     output_dir = Path(output)
     output_dir.mkdir(parents=True, exist_ok=True)
     return output_dir

@@ -34,6 +34,10 @@ EPISODE_REWARD = "episode_reward"
 ComponentFn = Callable[[TensorDictBase], Mapping[str, torch.Tensor]]
 
 
+class TermMissing(LookupError):
+    """A component's ``term_keys`` entry is not in the environment's step output (the message names both)."""
+
+
 class ComponentLeaves(Transform):
     """Base of the transforms that write component leaves ``(reward_key, name)`` next to the total.
 
@@ -128,9 +132,7 @@ class RewardComponents(ComponentLeaves):
         if self.component_fn is not None:
             raw = dict(self.component_fn(next_tensordict))
         else:
-            raw = {
-                name: next_tensordict.get(self.term_keys[name]) * self.scales.get(name, 1.0) for name in self.leaf_names
-            }
+            raw = {name: self._term(next_tensordict, name) * self.scales.get(name, 1.0) for name in self.leaf_names}
         batch_shape = next_tensordict.batch_size
         terms = {}
         for name in self.leaf_names:
@@ -143,6 +145,20 @@ class RewardComponents(ComponentLeaves):
                 raise ValueError(f"component {name!r} has shape {tuple(value.shape)}, expected {(*batch_shape, 1)}.")
             terms[name] = value
         return terms
+
+    def _term(self, next_tensordict: TensorDictBase, name: str) -> torch.Tensor:
+        key = self.term_keys[name]
+        value = next_tensordict.get(key, None)
+        if value is None:  # a misspelt term would otherwise be a component that is zero (or a TypeError) forever
+            path = (key,) if isinstance(key, str) else tuple(key)
+            parent = next_tensordict.get(path[:-1], None) if len(path) > 1 else next_tensordict
+            present = sorted(str(k) for k in parent.keys()) if isinstance(parent, TensorDictBase) else []
+            where = ".".join(path[:-1]) or "the step's output"
+            raise TermMissing(
+                f"component {name!r} reads {'.'.join(path)}, which the environment never writes; "
+                f"{where} has: {', '.join(present) or 'nothing'}"
+            )
+        return value
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         native = next_tensordict.get(self.reward_key)

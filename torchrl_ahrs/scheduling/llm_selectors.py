@@ -10,7 +10,7 @@ One decision, corrective retry included, is bounded by ``llm.decision_budget`` s
 client's attempts and backoff stop when it is spent). To keep training while the LLM thinks, run the
 scheduler with ``blocking=False`` (``scheduler.blocking=false``).
 
-Without Hydra, build a selector from a model string; the scheduler supplies the components,
+Without settings, build a selector from a model string; the scheduler supplies the components,
 ``base_weight`` and ``interval`` (given twice they could disagree)::
 
     selector = LLMRuleSelector.from_model("openai/gpt-4o")          # or api_base="http://host:port/v1"
@@ -22,10 +22,9 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
-from omegaconf import OmegaConf
 
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig
@@ -34,6 +33,9 @@ from torchrl_ahrs.llm.task_text import AUX
 from torchrl_ahrs.rewards.auxiliary import shipped_aux_path
 from torchrl_ahrs.scheduling.rules import RuleRepository, load_repository
 from torchrl_ahrs.scheduling.selectors import Decision, DecisionContext, Selector
+
+if TYPE_CHECKING:
+    from torchrl_ahrs.scheduling.settings import SchedulerSettings
 
 
 class _LLMSelectorBase(Selector):
@@ -220,26 +222,27 @@ class DirectWeightSelector(_LLMSelectorBase):
 
 
 def build_llm_selector(
-    name: str, cfg: Any, repository: RuleRepository, components: list[str], llm_calls_path: Path | None
+    name: str,
+    settings: SchedulerSettings,
+    repository: RuleRepository,
+    components: list[str],
+    llm_calls_path: Path | None,
 ) -> Selector:
-    """``llm`` or ``direct`` from the config's ``llm``, ``task`` and ``aux`` sections (a Hydra config or a
-    dict); ``base_weight``, ``interval`` and the weight mapping's text come from the scheduler that
-    receives the selector; every call is logged to ``llm_calls_path``. With an ``aux`` component its code
-    (``aux.path``, else the task's shipped auxiliary reward) is shown in the prompts."""
-    cfg = cfg if OmegaConf.is_config(cfg) else OmegaConf.create(dict(cfg))
-    llm_cfg = OmegaConf.to_container(cfg.llm, resolve=True)
-    client = LLMClient(LLMConfig.from_cfg(llm_cfg), calls_path=llm_calls_path)
-    task: Any = OmegaConf.to_container(cfg.task, resolve=True) if "task" in cfg else {}
+    """``llm`` or ``direct`` from ``settings.llm``, ``settings.task`` and ``settings.aux_path``;
+    ``base_weight``, ``interval`` and the weight mapping's text come from the scheduler that receives the
+    selector; every call is logged to ``llm_calls_path``. With an ``aux`` component its code
+    (``aux_path``, else the task's shipped auxiliary reward) is shown in the prompts."""
+    client = LLMClient(settings.llm, calls_path=llm_calls_path)
+    task = dict(settings.task)
     selector: _LLMSelectorBase
     if name == "llm":
         selector = LLMRuleSelector(client, repository, task, components)
     else:
         selector = DirectWeightSelector(client, task, components)
     if AUX in components:
-        aux_file = OmegaConf.select(cfg, "aux.path")
         try:
             selector.aux_path = (
-                Path(aux_file) if aux_file else shipped_aux_path(str(OmegaConf.select(cfg, "task.name") or ""))
+                Path(settings.aux_path) if settings.aux_path else shipped_aux_path(str(task.get("name") or ""))
             )
         except FileNotFoundError:
             selector.aux_path = None  # the prompt then gives aux's meaning without its code

@@ -39,7 +39,7 @@ from torchrl_ahrs.llm.client import FatalSelectorError
 from torchrl_ahrs.rewards.components import EPISODE_REWARD, TOTAL, finished_episode_returns
 from torchrl_ahrs.scheduling.mapping import WeightMapping
 from torchrl_ahrs.scheduling.rules import RuleRepository, load_repository
-from torchrl_ahrs.scheduling.selectors import BanditSelector, Decision, DecisionContext, Selector
+from torchrl_ahrs.scheduling.selectors import BanditSelector, ConstantSelector, Decision, DecisionContext, Selector
 from torchrl_ahrs.scheduling.settings import ScheduleSettings, interval_for
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
@@ -304,18 +304,16 @@ class RuleScheduler(TrainerHookBase):
         """Logs one decision point to python logging, the TorchRL logger and the decisions file."""
         selector = decision.selector if decision is not None else self.selector.name
         rule = self.repository[self.rule_id] if (applied and self.rule_id is not None) else None
-        what = f"rule {rule.id} ({rule.name})" if rule else ("direct weights" if applied else "no change")
-        weights_text = ", ".join(f"{c}={w:.3f}" for c, w in zip(self.components, self.weights.tolist(), strict=True))
-        suffix = f" [{self.note}]" if self.note else ""
-        log.info(
-            "decision at iteration %d by %s: %s; weights %s; %s%s",
-            self.iteration,
-            selector,
-            what,
-            weights_text,
-            message,
-            suffix,
-        )
+        if selector != ConstantSelector.name:  # one short line; a method without a schedule has nothing to say
+            # the full message, the statistics and the note (said once, at start) go to the decisions file
+            short = message if len(message) <= 60 else message[:59] + "…"  # e.g. why an LLM call fell back
+            reason = f" ({short})" if short else ""
+            if applied:
+                what = f"rule {rule.id} {rule.key}" if rule else "direct weights"
+                weights_text = " ".join(f"{w:.2f}" for w in self.weights.tolist())
+                log.info("decision it %d (%s): %s -> %s%s", self.iteration, selector, what, weights_text, reason)
+            else:
+                log.info("decision it %d (%s): weights kept%s", self.iteration, selector, reason)
         if self.logger is not None and applied:  # the new weights are logged as weight/<c> from the next batch on
             self.logger.log_scalar("scheduler/decision_rule", float(self.rule_id or 0), step=self.frames)
         if self.decisions_path is not None:

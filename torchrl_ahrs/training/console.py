@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
 
 import torch
@@ -106,14 +106,18 @@ class ConsoleProgress(TrainerHookBase):
         self.last_component_returns: list[float] | None = None
         self.seen_decisions = getattr(scheduler, "decision_index", 0)
 
-    def decision_text(self) -> str:
-        """``rule 1 hdpg`` (the rule in force), ``direct weights`` or ``no rule yet``."""
+    def decision_text(self, rule_id: int | None = None, decided: bool | None = None) -> str:
+        """``rule 1 hdpg``, ``direct weights`` or ``no rule yet``: the rule in force now, or ``rule_id`` (0 or
+        None: no rule) when given."""
         scheduler = self.scheduler
-        if scheduler is None or getattr(scheduler, "rule_id", None) is None:
-            if scheduler is not None and int(getattr(scheduler, "decision_index", 0)) > 0:
-                return "direct weights"
-            return "no rule yet"
-        rule = scheduler.repository[scheduler.rule_id]
+        if rule_id is None and decided is None:
+            rule_id = getattr(scheduler, "rule_id", None)
+            decided = scheduler is not None and int(getattr(scheduler, "decision_index", 0)) > 0
+        if getattr(getattr(scheduler, "selector", None), "name", None) == "constant":
+            return "no schedule"  # ppo, mcppo: the weights never change
+        if scheduler is None or not rule_id:
+            return "direct weights" if decided else "no rule yet"
+        rule = scheduler.repository[int(rule_id)]
         return f"rule {rule.id} {rule.key}"
 
     def line(self) -> str:
@@ -131,27 +135,47 @@ class ConsoleProgress(TrainerHookBase):
         text = " | ".join(parts)
         return text if len(text) <= LINE_WIDTH else text[: LINE_WIDTH - 1] + "…"  # one terminal line
 
-    def table(self, batch: TensorDictBase) -> str:
-        """Per-component last mean return, weight and effective share (the estimator's ``shares``)."""
-        weights = self.estimator.weights.detach().float().cpu()
-        shares = getattr(self.estimator, "shares", None)
-        if shares is None:  # an estimator that does not record its shares: the reward spreads stand in
-            rewards = torch.cat(
-                [batch.get(("next", "reward", c)).float().reshape(-1, 1) for c in self.components], dim=-1
-            ).cpu()  # [N, K], beside the CPU weights
-            shares = effective_shares(rewards, weights)
-        shares = shares.detach().float().cpu()
-        returns = self.last_component_returns or [float("nan")] * len(self.components)
-        width = max(9, *(len(c) for c in self.components))
+    def table(self, batch: TensorDictBase, metrics: Mapping[str, float] | None = None) -> str:
+        """Per-component last mean return, weight and effective share of one update.
+
+        With the iteration's ``metrics`` (``weight/<c>``: the weights the update used, ``share/<c>``: their
+        shares in it, ``scheduler/rule``: the rule they came from) the row's numbers belong to one update, and a
+        ``next`` column shows the weights a decision installed after it. Without them, the estimator's
+        ``weights`` and ``shares`` (or shares estimated from the batch's reward spreads)."""
+        current = self.estimator.weights.detach().float().cpu()
+        names = self.components
+        header = self.decision_text()
+        if metrics is not None and all(f"weight/{c}" in metrics and f"share/{c}" in metrics for c in names):
+            weights = torch.tensor([metrics[f"weight/{c}"] for c in names])
+            shares = torch.tensor([metrics[f"share/{c}"] for c in names])
+            if "scheduler/rule" in metrics:  # the rule of this update; a decision after it is the "next" one
+                later = int(not torch.allclose(weights, current))
+                decided = int(getattr(self.scheduler, "decision_index", 0)) - later > 0
+                header = self.decision_text(int(metrics["scheduler/rule"]), decided)
+        else:
+            weights = current
+            recorded = getattr(self.estimator, "shares", None)
+            if recorded is None:  # an estimator that does not record its shares: the reward spreads stand in
+                rewards = torch.cat(
+                    [batch.get(("next", "reward", c)).float().reshape(-1, 1) for c in names], dim=-1
+                ).cpu()  # [N, K], beside the CPU weights
+                recorded = effective_shares(rewards, weights)
+            shares = recorded.detach().float().cpu()
+        changed = not torch.allclose(weights, current)  # a decision after this update: its weights come next
+        returns = self.last_component_returns or [float("nan")] * len(names)
+        width = max(9, *(len(c) for c in names))
         rows = [
-            f"it {self.iteration} | {_si(self.frames)} frames | {self.decision_text()}",
-            f"  {'component':<{width}} {'return':>9} {'weight':>8} {'share':>7}",
+            f"it {self.iteration} | {_si(self.frames)} frames | {header}"
+            + (f" -> next {self.decision_text()}" if changed else ""),
+            f"  {'component':<{width}} {'return':>9} {'weight':>8} {'share':>7}" + (f" {'next':>8}" if changed else ""),
         ]
-        for name, ret, weight, share in zip(self.components, returns, weights.tolist(), shares.tolist(), strict=True):
-            rows.append(f"  {name:<{width}} {ret:>9.4g} {weight:>8.3f} {share:>7.1%}")
+        columns = zip(names, returns, weights.tolist(), shares.tolist(), current.tolist(), strict=True)
+        for name, ret, weight, share, upcoming in columns:
+            row = f"  {name:<{width}} {ret:>9.4g} {weight:>8.3f} {share:>7.1%}"
+            rows.append(row + (f" {upcoming:>8.3f}" if changed else ""))
         return "\n".join(rows)
 
-    def __call__(self, batch: TensorDictBase) -> dict[str, float]:
+    def __call__(self, batch: TensorDictBase, metrics: Mapping[str, float] | None = None) -> dict[str, float]:
         self.iteration += 1
         self.frames += batch.numel()
         tracked = self.components + ([TOTAL] if TOTAL not in self.components else [])
@@ -166,7 +190,7 @@ class ConsoleProgress(TrainerHookBase):
         periodic = self.table_interval > 0 and self.iteration % self.table_interval == 0
         if decisions != self.seen_decisions or periodic:
             self.seen_decisions = decisions
-            print(self.table(batch), file=self.stream, flush=True)
+            print(self.table(batch, metrics), file=self.stream, flush=True)
         return {}  # nothing for the logger: ComponentReturnLog logs the numbers
 
     def state_dict(self) -> dict[str, Any]:

@@ -100,7 +100,8 @@ class TrainingRun:
         observation_norms: ``(normaliser, observation key)`` pairs updated after each update.
         value_norm: the critic heads' TorchRL ``ValueNorm`` (``ppo.value_norm``): the loss regresses value targets
             standardised with it (:mod:`~torchrl_ahrs.training.value_norm`), GAE reads the critic in reward units.
-        console, video, checkpoint: called once per iteration, in the log and checkpoint sections.
+        console: called as ``console(batch, metrics)`` after the iteration's scalars are logged.
+        video, checkpoint: called once per iteration, in the log and checkpoint sections.
         progress: the loop's counters (loaded on resume).
 
     Example:
@@ -142,7 +143,7 @@ class TrainingRun:
     generator: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
     observation_norms: Sequence[tuple[RunningNorm, str]] = ()
     value_norm: Any = None
-    console: Callable[[TensorDictBase], Any] | None = None
+    console: Callable[[TensorDictBase, dict[str, float]], Any] | None = None
     video: Callable[[], None] | None = None
     checkpoint: Callable[[], None] | None = None
     progress: Progress = field(default_factory=Progress)
@@ -243,7 +244,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
                 run.logger.log_scalar(name, value, step=frames)
             latest.update(metrics)
             if run.console is not None:
-                run.console(batch)
+                run.console(batch, metrics)  # the table's weights and shares: this iteration's, from one update
             if run.video is not None:
                 run.video()
 
