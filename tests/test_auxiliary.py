@@ -1,7 +1,6 @@
 """Auxiliary reward: the transform, the shipped rewards on real batches, refusal of broken or hostile code,
 the three methods that use it, and the generator against a local scripted LLM server."""
 
-import csv
 import json
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from torchrl.envs.utils import check_env_specs
 
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs, validate_aux_file
 from torchrl_ahrs.app.config import ConfigError, resolve_components, validate_config
+from torchrl_ahrs.app.runs import read_scalar as read_scalar_file
 from torchrl_ahrs.app.settings import load_task_config
 from torchrl_ahrs.envs.registry import available_tasks, make_env
 from torchrl_ahrs.rewards.auxiliary import (
@@ -49,8 +49,7 @@ def task_dict(name, **extra):
 
 
 def read_scalar(run_dir, name):
-    with open(run_dir / "metrics" / "scalars" / f"{name}.csv") as handle:
-        return [float(row[1]) for row in csv.reader(handle)]
+    return read_scalar_file(run_dir / "metrics" / "scalars" / f"{name}.csv")[1].tolist()
 
 
 # ---------------------------------------------------------------------------------------------------

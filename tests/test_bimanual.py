@@ -3,8 +3,6 @@ native reward, hand-derived task quantities, thread physics, partial resets, see
 
 from __future__ import annotations
 
-import csv
-
 import mujoco
 import numpy as np
 import pytest
@@ -12,6 +10,7 @@ import torch
 from hydra import compose, initialize_config_module
 from torchrl.envs.utils import check_env_specs
 
+from torchrl_ahrs.app.runs import read_scalar
 from torchrl_ahrs.app.settings import load_task_config
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.shadow_hand_bottle_cap import (
@@ -161,8 +160,7 @@ def test_hdppo_trains_20k_frames_and_logs_every_component(tmp_path, task):
     iterations = -(-20000 // cfg.trainer.frames_per_batch)  # ceil: the collector finishes its last batch
     for name in [*cfg.task.components, "total"]:
         for kind in ("reward", "return"):
-            with open(tmp_path / "metrics" / "scalars" / f"{kind}/{name}.csv") as handle:
-                values = [float(row[1]) for row in csv.reader(handle)]
+            values = read_scalar(tmp_path / "metrics" / "scalars" / f"{kind}/{name}.csv")[1].tolist()
             assert values and all(np.isfinite(values)), f"{kind}/{name}"
             if kind == "reward":
                 assert len(values) == iterations, f"{kind}/{name} not logged every iteration"

@@ -85,8 +85,9 @@ def test_mean_action_is_reproducible_and_sampling_is_not_the_mean(trained_run):
 def test_rendered_clip_has_the_requested_frames_and_is_not_blank(trained_run):
     frames, fps = 12, 50  # point_reach control dt is 0.02 s: real-time playback at 50 frames/s
     result = run_cli(
-        f"run={trained_run}", "episodes=2", "video=true", f"video_frames={frames}", "video_width=64", "video_height=48"
-    )
+        f"run={trained_run}", "episodes=2", "video=true", f"video_frames={frames}", "video_width=64", "video_height=48",
+        "video_format=gif",
+    )  # fmt: skip
     if result.returncode == 3 and "no video" in result.stderr:
         pytest.skip(f"no offscreen GL backend on this machine: {result.stderr.strip()}")
     assert result.returncode == 0, result.stderr
@@ -101,6 +102,21 @@ def test_rendered_clip_has_the_requested_frames_and_is_not_blank(trained_run):
     # GIF merges identical consecutive frames into one longer frame, so count frames by playback time
     assert sum(delays) == frames * round(1000 / fps)
     assert all(image.std() > 5.0 for image in images), [round(image.std(), 2) for image in images]
+
+
+@pytest.mark.slow
+def test_default_clip_is_a_640x480_mp4_that_follows_the_robot(trained_run):
+    pytest.importorskip("imageio_ffmpeg", reason="the video extra is not installed")
+    import imageio.v2 as imageio
+
+    result = run_cli(f"run={trained_run}", "episodes=1", "output=null", "video=true", "video_frames=8")
+    if result.returncode == 3 and "no video" in result.stderr:
+        pytest.skip(f"no offscreen GL backend on this machine: {result.stderr.strip()}")
+    assert result.returncode == 0, result.stderr
+    assert "camera tracking body 1" in result.stdout
+    frames = np.stack(imageio.mimread(str(trained_run / "videos" / "point_reach.mp4"), format="FFMPEG"))
+    assert frames.shape == (8, 480, 640, 3)
+    assert frames[:, :80].mean() > 60  # a sky above the horizon, not MuJoCo's black background
 
 
 @pytest.mark.slow

@@ -3,7 +3,6 @@ JSON, a prompt over the context window. The client retries what a retry can fix 
 selector falls back, and both logs say so; a short training goes on through all of them.
 """
 
-import csv
 import json
 import threading
 import time
@@ -14,6 +13,7 @@ from conftest import make_cfg
 from llm_server import ScriptedServer, context_length_error, free_port
 
 from torchrl_ahrs.app.run_dir import DECISIONS, LLM_CALLS
+from torchrl_ahrs.app.runs import read_scalar
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, retry_after
 from torchrl_ahrs.scheduling import RuleScheduler, load_repository
 from torchrl_ahrs.scheduling.llm_selectors import LLMRuleSelector
@@ -150,8 +150,8 @@ def test_prompt_over_the_context_window_is_not_retried(llm_server, tmp_path, loo
 
 
 def rows(path):
-    with open(path) as handle:
-        return [(int(step), float(value)) for step, value in csv.reader(handle)]
+    steps, values = read_scalar(path)
+    return [(int(step), float(value)) for step, value in zip(steps, values, strict=True)]
 
 
 @pytest.mark.slow

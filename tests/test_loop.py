@@ -11,6 +11,7 @@ from hydra import compose, initialize_config_module
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.iteration import train
 from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.runs import read_scalar
 
 FRAMES, ITERATIONS, EPOCHS = 64, 3, 3
 COMPONENTS = ["distance", "arrival", "ctrl"]
@@ -67,7 +68,7 @@ def test_the_actor_is_checkpointed_once(run):
 def test_weights_are_logged_once_under_one_name(run):
     names = sorted(path.relative_to(run.scalars).with_suffix("").as_posix() for path in run.scalars.rglob("*.csv"))
     assert [name for name in names if "weight" in name] == [f"weight/{c}" for c in sorted(COMPONENTS)]
-    steps = [int(line.split(",")[0]) for line in run.scalar("weight/distance").read_text().splitlines()]
+    steps = read_scalar(run.scalar("weight/distance"))[0].astype(int).tolist()
     assert steps == [FRAMES * (i + 1) for i in range(ITERATIONS)]
 
 

@@ -1,5 +1,6 @@
 """The built wheel carries the Hydra configs: train runs from a fresh venv outside the checkout."""
 
+import importlib
 import site
 import subprocess
 import sys
@@ -23,6 +24,9 @@ def test_wheel_runs_training_outside_the_checkout(tmp_path):
     (wheel,) = wheel_dir.glob("torchrl_ahrs-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     assert "torchrl_ahrs/conf/config.yaml" in names
+    assert "torchrl_ahrs/py.typed" in names  # users' type checkers read the annotations
+    (entry_points,) = [name for name in names if name.endswith(".dist-info/entry_points.txt")]
+    assert "torchrl-ahrs-train = torchrl_ahrs.train:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
     assert any(name.startswith("torchrl_ahrs/conf/task/") for name in names)
     # every subpackage and every robot model of the checkout is in the wheel
     for init in (ROOT / "torchrl_ahrs").rglob("__init__.py"):
@@ -77,3 +81,28 @@ def test_wheel_runs_training_outside_the_checkout(tmp_path):
     assert str(ROOT) not in imported_from
     assert (workdir / "run" / "config.yaml").exists()
     assert (workdir / "run" / "checkpoint.pt").exists()
+
+
+def test_console_scripts_point_at_the_python_m_entry_points():
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    scripts = project["scripts"]
+    commands = {path.stem for path in (ROOT / "torchrl_ahrs").glob("*.py") if path.stem != "__init__"} | {"sandbox"}
+    assert {name.removeprefix("torchrl-ahrs-").replace("-", "_") for name in scripts} == commands
+    for name, target in scripts.items():
+        module_name, function = target.split(":")
+        module = importlib.import_module(module_name)
+        assert callable(getattr(module, function)), name
+        python_m = module_name.removesuffix(".__main__")
+        assert name == "torchrl-ahrs-" + python_m.removeprefix("torchrl_ahrs.").replace("_", "-")
+
+
+def test_the_package_is_marked_typed_and_its_extras_exist():
+    tomllib = pytest.importorskip("tomllib")
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert (ROOT / "torchrl_ahrs" / "py.typed").is_file()
+    assert "py.typed" in pyproject["tool"]["setuptools"]["package-data"]["torchrl_ahrs"]
+    assert "Typing :: Typed" in pyproject["project"]["classifiers"]
+    extras = pyproject["project"]["optional-dependencies"]
+    assert {"wandb", "mlflow", "video", "onnx", "optuna"} <= set(extras)
+    assert any(text.startswith("gymnasium") for text in pyproject["project"]["dependencies"])

@@ -19,6 +19,7 @@ from tensordict import TensorDictBase
 from torchrl_ahrs.app import checkpoint as checkpoint_module
 from torchrl_ahrs.app.iteration import train
 from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.runs import read_scalar
 
 TIMING = {"frames_per_second"}  # metrics that measure the machine, not the run
 
@@ -179,7 +180,7 @@ def checkpoint_iteration(run):
 
 
 def csv_steps(path):
-    return [int(line.split(",")[0]) for line in path.read_text().splitlines()]
+    return read_scalar(path)[0].astype(int).tolist()
 
 
 @pytest.mark.slow

@@ -1,6 +1,5 @@
 """End-to-end training: the return goes up, metrics land in the run directory, bad configs fail clearly."""
 
-import csv
 import re
 import subprocess
 import sys
@@ -10,6 +9,7 @@ import torch
 from conftest import make_cfg
 
 from torchrl_ahrs.app.config import ConfigError, validate_config
+from torchrl_ahrs.app.runs import read_scalar as read_scalar_file
 from torchrl_ahrs.train import train
 
 FAST = [
@@ -26,8 +26,7 @@ FAST = [
 
 
 def read_scalar(run_dir, name):
-    with open(run_dir / "metrics" / "scalars" / f"{name}.csv") as handle:
-        return [float(row[1]) for row in csv.reader(handle)]
+    return read_scalar_file(run_dir / "metrics" / "scalars" / f"{name}.csv")[1].tolist()
 
 
 @pytest.mark.slow

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import sys
 
-from torchrl_ahrs.train import main
+from torchrl_ahrs.train import main as train_main
 
 
 def run(argv: list[str]) -> None:
@@ -34,8 +34,13 @@ def run(argv: list[str]) -> None:
     if "--multirun" not in argv and "-m" not in argv:
         argv = ["--multirun", *argv]
     sys.argv = [sys.argv[0], *argv]
-    main()
+    train_main()
+
+
+def main() -> None:
+    """The console script ``torchrl-ahrs-sweep``: :func:`run` on the command line's arguments."""
+    run(sys.argv[1:])
 
 
 if __name__ == "__main__":
-    run(sys.argv[1:])
+    main()

@@ -41,7 +41,8 @@ def main() -> None:
 
 
 @hydra.main(config_path="pkg://torchrl_ahrs.conf", config_name="config", version_base="1.3")
-def hydra_main(cfg: DictConfig) -> None:
+def hydra_main(cfg: DictConfig) -> float:
+    """One run; returns its last ``return/total`` (what ``hydra/sweeper=optuna`` maximises, docs/optuna.md)."""
     try:
         hydra_cfg = HydraConfig.get()
         run_dir = Path(cfg.resume) if cfg.get("resume") else Path(hydra_cfg.runtime.output_dir)
@@ -53,7 +54,7 @@ def hydra_main(cfg: DictConfig) -> None:
         )
         if cfg.get("resume") or in_sweep:
             cfg = load_saved_config(run_dir, hydra_cfg.overrides.task)
-        train(cfg, run_dir)
+        return train(cfg, run_dir).get("return/total", float("nan"))  # nan: no episode ended (an optuna trial fails)
     except (ConfigError, FileNotFoundError, FloatingPointError) as error:
         print(f"error: {error}", file=sys.stderr)
         sys.exit(2)

@@ -89,11 +89,14 @@ def collected_frames(run_dir: Path) -> int | None:
 
 
 def truncate_metrics(metrics_dir: Path, last_step: int) -> int:
-    """Drops CSV rows whose step is after ``last_step``; returns how many rows were dropped."""
+    """Drops CSV rows whose step is after ``last_step`` (a ``step,value`` header stays); returns how many rows
+    were dropped."""
     dropped = 0
     for csv_path in Path(metrics_dir).rglob("*.csv"):
         rows = csv_path.read_text().splitlines()
-        kept = [row for row in rows if row and int(float(row.split(",", 1)[0])) <= last_step]
+        kept = [
+            row for row in rows if row and (row.startswith("step,") or int(float(row.split(",", 1)[0])) <= last_step)
+        ]
         dropped += len(rows) - len(kept)
         if len(kept) != len(rows):
             csv_path.write_text("".join(line + "\n" for line in kept))

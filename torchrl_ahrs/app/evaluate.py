@@ -9,7 +9,8 @@ runs ``episodes`` episodes with the mean action (``deterministic=false`` samples
 
 and writes ``<run>/evaluation.json`` (returns per component, episode lengths, task metrics such as
 Cassie's velocity-tracking error or the point's distance to its target). ``video=true`` also renders
-environment 0 offscreen into ``<run>/videos/<task>.gif`` (or ``.mp4``).
+environment 0 offscreen, 640x480 through a camera following the robot, into ``<run>/videos/<task>.mp4``
+(``.gif`` without imageio-ffmpeg).
 
 Importing this module imports ``mujoco``: a process that renders calls
 :func:`~torchrl_ahrs.evaluation.render.select_gl_backend` before (the entry point does).
@@ -27,7 +28,7 @@ from torchrl_ahrs.app.policy import EvaluationError, load_policy
 from torchrl_ahrs.app.run_dir import EVALUATION, RunDirectory
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.evaluation.episodes import record_frames, run_episodes, summarize
-from torchrl_ahrs.evaluation.render import base_env, make_frame_source, write_clip
+from torchrl_ahrs.evaluation.render import base_env, clip_format, make_frame_source, write_clip
 from torchrl_ahrs.evaluation.task_metrics import episode_metrics, step_probe
 from torchrl_ahrs.rewards.components import TOTAL
 
@@ -77,23 +78,25 @@ def render_clip(
     run_dir: str | Path,
     num_frames: int = 200,
     stride: int = 1,
-    width: int = 320,
-    height: int = 240,
-    video_format: str = "gif",
+    width: int = 640,
+    height: int = 480,
+    video_format: str = "auto",
     name: str | None = None,
     fps: float | None = None,
     deterministic: bool = True,
     seed: int = 12345,
 ) -> Path:
     """Renders environment 0 of a one-env copy of the task under the policy; returns the clip's path.
+    ``video_format="auto"``: MP4 when imageio-ffmpeg is installed, else GIF (:func:`clip_format`).
 
     Raises:
         RenderUnavailable: the task or the machine cannot render (the message says why).
     """
     if num_frames < 1 or stride < 1:
         raise EvaluationError(f"video_frames and video_stride must be positive, got {num_frames}, {stride}")
-    if video_format not in ("gif", "mp4"):
-        raise EvaluationError(f"video_format must be gif or mp4, got {video_format!r}")
+    if video_format not in ("auto", "gif", "mp4"):
+        raise EvaluationError(f"video_format must be auto, gif or mp4, got {video_format!r}")
+    video_format = clip_format(video_format)
     policy = load_policy(run_dir)
     env = policy.make_envs(1, seed)
     try:

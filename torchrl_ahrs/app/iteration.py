@@ -94,6 +94,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     done_frames = int(resumed["state"]["collected_frames"]) if resumed else 0
     collector = build_collector(cfg, networks.actor, make_envs, devices.learner)
     logger = build_logger(cfg.logger.backends, run.path, METRICS)
+    if resumed is None:  # TensorBoard's HParams tab and the config as text, once per run (from the redacted file)
+        logger.log_run_config(run.config.read_text())
     # the environments' seeds, then every global generator from the seed they return (what TorchRL's
     # Trainer(seed=) did when it ran the loop: kept, so a seed draws the numbers it drew then); what has a state
     # is overwritten by load_registry below, and on resume what has none (EnvPool's simulators) starts episodes

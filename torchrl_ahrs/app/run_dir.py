@@ -12,8 +12,9 @@
       finished.json              written when the frame budget is reached: {"collected_frames", "total_frames"};
                                  small and committed with a sweep's results (checkpoints are not), so a rerun sweep
                                  and the report know a finished run without its checkpoint
-      metrics/                   the logger's experiment: scalars/<name>.csv (TorchRL CSVLogger rows
-                                 "step,value", step = collected frames) and TensorBoard events
+      metrics/                   the logger's experiment: scalars/<name>.csv (a "step,value" header, then one
+                                 row per log, step = collected frames) and TensorBoard events (scalars,
+                                 hyperparameters, the config as text)
       scheduler_decisions.jsonl  one JSON line per scheduler decision (iteration, frames, rule, weights, ...)
       llm_calls.jsonl            one JSON line per LLM request (audit log, never truncated; replayable)
       evaluation.json            written by `evaluate`: returns per component, lengths, task metrics

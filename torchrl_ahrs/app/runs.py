@@ -31,11 +31,20 @@ from torchrl_ahrs.reporting.stats import final_return, final_window_mask
 
 
 def read_scalar(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """A TorchRL CSVLogger file (rows ``step,value``, no header) as (steps [R], values [R]), sorted by step."""
+    """A metric CSV file (rows ``step,value``; the ``step,value`` header of current runs, or none as in runs
+    written before it, e.g. under ``benchmarks/results``) as (steps [R], values [R]), sorted by step.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "total.csv"
+        >>> _ = path.write_text("step,value\\n200,2.0\\n100,1.0\\n")
+        >>> read_scalar(path)
+        (array([100., 200.]), array([1., 2.]))
+    """
     steps, values = [], []
     with open(path) as handle:
         for row in csv.reader(handle):
-            if len(row) >= 2:
+            if len(row) >= 2 and row[0] != "step":
                 steps.append(float(row[0]))
                 values.append(float(row[1]))
     order = np.argsort(steps, kind="stable")

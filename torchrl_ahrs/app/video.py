@@ -110,8 +110,8 @@ class VideoLog(TrainerHookBase):
         run_dir: str | Path,
         interval: int,
         num_frames: int = 100,
-        width: int = 160,
-        height: int = 120,
+        width: int = 640,
+        height: int = 480,
         seed: int = 0,
     ):
         if interval < 1:
@@ -170,8 +170,8 @@ def register_video_log(
         run_dir,
         interval,
         num_frames=int(logger_cfg.get("video_frames", 100)),
-        width=int(logger_cfg.get("video_width", 160)),
-        height=int(logger_cfg.get("video_height", 120)),
+        width=int(logger_cfg.get("video_width", 640)),
+        height=int(logger_cfg.get("video_height", 480)),
         seed=int(cfg.seed) + 777,
     )
     if trainer is not None:  # None: only built, for training/loop.py, which calls it once per iteration

@@ -16,6 +16,7 @@ must run before that (the ``evaluate`` entry point does it first thing). On thes
 
 from __future__ import annotations
 
+import copy
 import ctypes.util
 import os
 import sys
@@ -85,7 +86,8 @@ class TrackingCamera:
         env: the batched MuJoCo env (its ``model`` and ``datas``).
         width, height: frame size in pixels.
         env_index: which of the N simulations to show.
-        distance: camera distance as a multiple of the model's extent (``model.stat.extent``).
+        distance: camera distance as a multiple of the robot's radius (the tracked body's subtree at the
+            model's reference pose; not ``model.stat.extent``, which the floor inflates: 16 m for the ant).
 
     Example:
         >>> from torchrl_ahrs.envs.tasks.point_reach import PointReachEnv
@@ -94,23 +96,29 @@ class TrackingCamera:
         (48, 64, 3)
     """
 
-    def __init__(self, env, width: int = 320, height: int = 240, env_index: int = 0, distance: float = 1.6):
+    def __init__(self, env, width: int = 640, height: int = 480, env_index: int = 0, distance: float = 2.5):
         import mujoco
 
         self.env, self.env_index = env, env_index
-        model = env.model
-        # the offscreen buffer must hold the frame (visual options only; the physics is unaffected)
+        # a copy with the visual options changed (same sizes, so it draws the env's MjData); the env keeps its own
+        model = copy.deepcopy(env.model)
+        # the offscreen buffer must hold the frame
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
         model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+        track = 1 if model.nbody > 1 else 0  # the first body after the world: the robot's root
+        camera_distance = max(distance * robot_radius(model, track), 1.0)
+        # no shadows: on the software GL of these machines the directional light's shadow map breaks up into
+        # black specks across the floor (seen on ant, quadcopter and cassie at 640x480)
+        model.light_castshadow[:] = 0
         try:
             self.renderer = mujoco.Renderer(model, height=height, width=width)
         except Exception as error:
             raise RenderUnavailable(f"mujoco.Renderer failed ({error!r}); try MUJOCO_GL=osmesa or egl") from error
         self.camera = mujoco.MjvCamera()
         self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-        self.camera.trackbodyid = 1 if model.nbody > 1 else 0  # the first body after the world: the robot's root
-        self.camera.distance = distance * max(float(model.stat.extent), 0.5)
-        self.camera.elevation = -15.0
+        self.camera.trackbodyid = track
+        self.camera.distance = camera_distance
+        self.camera.elevation = -20.0
         self.camera.azimuth = 135.0
         self.description = f"MuJoCo offscreen ({os.environ.get('MUJOCO_GL', 'glfw')}), camera tracking body 1"
 
@@ -121,6 +129,30 @@ class TrackingCamera:
 
     def close(self) -> None:
         self.renderer.close()
+
+
+def robot_radius(model, body: int) -> float:
+    """Radius (m) of the sphere around ``body`` holding every geom of its subtree, at the reference pose ``qpos0``.
+
+    Example:
+        >>> import mujoco
+        >>> xml = '<mujoco><worldbody><body><geom size="0.1"/><body pos="0.5 0 0"><geom size="0.2"/></body></body></worldbody></mujoco>'
+        >>> round(robot_radius(mujoco.MjModel.from_xml_string(xml), 1), 3)
+        0.7
+    """
+    import mujoco
+
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    in_subtree = np.zeros(model.nbody, dtype=bool)
+    in_subtree[body] = True
+    for child in range(body + 1, model.nbody):  # MuJoCo numbers a parent before its children
+        in_subtree[child] = in_subtree[model.body_parentid[child]]
+    geoms = np.flatnonzero(in_subtree[model.geom_bodyid])
+    if not geoms.size:
+        return 0.0
+    reach = np.linalg.norm(data.geom_xpos[geoms] - data.xpos[body], axis=1) + model.geom_rbound[geoms]
+    return float(reach.max())
 
 
 class EnvPoolCamera:
@@ -169,6 +201,20 @@ def make_frame_source(env: EnvBase, width: int, height: int, env_index: int = 0)
     if isinstance(inner, EnvPoolEnv):
         return EnvPoolCamera(inner, width, height, env_index)
     raise RenderUnavailable(f"{type(inner).__name__} has no renderer (only MuJoCo and EnvPool MuJoCo tasks render)")
+
+
+def clip_format(requested: str = "auto") -> str:
+    """``"mp4"`` or ``"gif"``: ``"auto"`` is MP4 when imageio-ffmpeg (the ``video`` extra) is installed, else GIF.
+
+    Example:
+        >>> clip_format("gif"), clip_format("auto") in ("mp4", "gif")
+        ('gif', True)
+    """
+    if requested != "auto":
+        return requested
+    import importlib.util
+
+    return "mp4" if importlib.util.find_spec("imageio_ffmpeg") is not None else "gif"
 
 
 def write_clip(frames: list[np.ndarray] | np.ndarray, path: str | Path, fps: float) -> Path:

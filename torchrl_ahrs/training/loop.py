@@ -226,6 +226,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
             # only now, so the log-probabilities stored at collection stay those of the policy being optimised
             for norm, key in run.observation_norms:
                 norm.update(batch.get(key))
+            metrics["train/learning_rate"] = optimizer.param_groups[0]["lr"]  # the last step's (the anneal follows)
             if settings.anneal_lr and settings.kl_target is None:
                 fraction = min(1.0, frames / settings.total_frames)
                 for group in optimizer.param_groups:

@@ -24,6 +24,9 @@ from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward
 POINT_XML = """
 <mujoco model="point_reach">
   <option timestep="0.02"/>
+  <asset>  <!-- visual only: a sky for the tracking camera (MuJoCo draws none without a skybox texture) -->
+    <texture type="skybox" builtin="gradient" rgb1="0.6 0.75 0.9" rgb2="0.2 0.25 0.35" width="64" height="64"/>
+  </asset>
   <worldbody>
     <geom name="floor" type="plane" size="2 2 0.1" rgba="0.8 0.8 0.8 1"/>
     <body name="point" pos="0 0 0.05">
