@@ -2,7 +2,9 @@
 
 The iteration itself is :mod:`torchrl_ahrs.app.iteration`; this entry point only composes the Hydra
 config, picks the run directory (new, or the one ``resume=<run dir>`` names) and turns configuration
-errors into one line on stderr with exit status 2.
+errors into one line on stderr with exit status 2. Any other crash is printed here, with every secret of the
+config and the command line replaced by ``<redacted>`` (Hydra's own "Error executing job with overrides"
+line would print ``llm.api_key=...`` in clear), and exits with status 1.
 """
 
 # ruff: noqa: E402  (the GL backend must be chosen before the imports below load mujoco)
@@ -12,7 +14,9 @@ from torchrl_ahrs.evaluation.render import select_gl_backend
 
 select_gl_backend()  # MuJoCo reads MUJOCO_GL once, at import: choose offscreen GL before anything imports it
 
+import os
 import sys
+import traceback
 from pathlib import Path
 
 import hydra
@@ -22,9 +26,11 @@ from omegaconf import DictConfig
 
 from torchrl_ahrs.app.config import ConfigError, load_saved_config, refuse_renamed
 from torchrl_ahrs.app.iteration import train
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.redaction import secret_values
+from torchrl_ahrs.app.run_dir import REDACTED, RunDirectory
+from torchrl_ahrs.rewards.auxiliary import AuxiliaryRewardError
 
-__all__ = ["main", "train"]
+__all__ = ["main", "redact", "train"]
 
 
 def main() -> None:
@@ -52,8 +58,35 @@ def hydra_main(cfg: DictConfig) -> None:
             cfg = load_saved_config(run_dir, hydra_cfg.overrides.task)
         train(cfg, run_dir)
     except (ConfigError, FileNotFoundError, FloatingPointError) as error:
-        print(f"error: {error}", file=sys.stderr)
+        print(f"error: {redact(str(error), cfg)}", file=sys.stderr)
         sys.exit(2)
+    except AuxiliaryRewardError as error:
+        print(
+            f"error: {redact(str(error), cfg)}; training stopped, its last state is in the checkpoint", file=sys.stderr
+        )
+        sys.exit(2)
+    except Exception:  # noqa: BLE001 (printed here, redacted, instead of by Hydra with the overrides in clear)
+        print(redact(traceback.format_exc(), cfg), file=sys.stderr)
+        sys.exit(1)
+
+
+def redact(text: str, cfg: DictConfig) -> str:
+    """``text`` with every secret of ``cfg``, the command line and credential-like environment variables replaced.
+
+    Example:
+        >>> from omegaconf import OmegaConf
+        >>> redact("key sk-abcdef failed", OmegaConf.create({"llm": {"api_key": "sk-abcdef"}}))
+        'key <redacted> failed'
+    """
+    secrets = secret_values(cfg, sys.argv[1:])
+    secrets |= {
+        value
+        for name, value in os.environ.items()
+        if any(mark in name.upper() for mark in ("KEY", "TOKEN", "SECRET", "PASSWORD")) and len(value) > 7
+    }
+    for secret in sorted(secrets, key=len, reverse=True):
+        text = text.replace(secret, REDACTED)
+    return text
 
 
 if __name__ == "__main__":

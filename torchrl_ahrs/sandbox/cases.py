@@ -198,7 +198,7 @@ def validate(
         >>> validate("def rule(m, v, h, w):\\n    return m / (m.shape[0] - 1)\\n", "rule", num_components=11)["ok"]
         True
         >>> validate("def rule(m, v, h, w):\\n    return m / (m.shape[0] - 1)\\n", "rule")["reasons"]
-        ["rule: output is not finite (NaN or inf) on input 'random K=1'"]
+        ["rule: output is not finite (1 NaN or inf value(s)) on input 'random K=1'"]
     """
     try:
         functions = (loader or load_functions)(source)

@@ -175,7 +175,14 @@ def _child(request: dict, result_fd: int) -> None:
     install_limits(request["cpu_seconds"], request["memory_bytes"])
     sys.addaudithook(_audit_hook)
     loader = None if request.get("restricted", True) else _load_unrestricted
-    report = validate(request["source"], request["kind"], inputs, request.get("num_components"), loader=loader)
+    report = validate(
+        request["source"],
+        request["kind"],
+        inputs,
+        request.get("num_components"),
+        loader=loader,
+        batch_size=request.get("batch_size"),
+    )
     payload = json.dumps(report).encode()[:MAX_REPORT_BYTES]
     while payload:
         payload = payload[os.write(result_fd, payload) :]

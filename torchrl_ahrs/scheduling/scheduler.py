@@ -35,6 +35,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.trainers import TrainerHookBase
 
+from torchrl_ahrs.common.text import error_line, one_line
 from torchrl_ahrs.llm.client import FatalSelectorError
 from torchrl_ahrs.rewards.components import EPISODE_REWARD, TOTAL, finished_episode_returns
 from torchrl_ahrs.scheduling.mapping import WeightMapping
@@ -268,8 +269,9 @@ class RuleScheduler(TrainerHookBase):
         except FatalSelectorError:
             raise  # e.g. a replay miss: continuing would silently diverge from the recorded run
         except Exception as error:  # noqa: BLE001 (a selector failure must not stop training)
-            log.exception("selector %s failed", self.selector.name)
-            return Decision(self.selector.name, note=f"selector failed: {type(error).__name__}: {error}")
+            log.warning("selector %s failed: %s", self.selector.name, error_line(error))
+            log.debug("selector failure", exc_info=True)
+            return Decision(self.selector.name, note=f"selector failed: {error_line(error)}")
 
     def _collect_pending(self) -> None:
         if self._pending is not None and self._pending[0].done():
@@ -290,7 +292,8 @@ class RuleScheduler(TrainerHookBase):
                 weights = self.mapping(rule.scores(context.mean, context.var, context.history, self.weights))
                 rule_id = rule.id
         except Exception as error:  # noqa: BLE001 (a rule failure must not stop training)
-            self._record(decision, f"{decision.note} rule failed ({type(error).__name__}: {error}); weights kept")
+            # one capped line, whatever the rule raised (a 1 MB message would fill every log at every decision)
+            self._record(decision, f"{one_line(decision.note)} rule failed ({error_line(error)}); weights kept")
             return
         if weights.shape != self.weights.shape or not torch.isfinite(weights).all():
             self._record(decision, f"invalid weights {weights.tolist()}; weights kept")
