@@ -91,7 +91,7 @@ def call_function(fn, buffer: memoryview, request: dict, cpu_seconds: float) -> 
     try:
         output = fn(*arguments)
     except CpuLimitExceeded:
-        return {"ok": False, "error": f"CPU-time limit of {cpu_seconds:g} s per call exceeded"}
+        return {"ok": False, "error": f"CPU-time limit exceeded ({cpu_seconds:g} s per call)"}
     except SandboxRefusal as error:
         return {"ok": False, "error": f"refused while running: {_one_line(str(error))}"}
     except MemoryError:

@@ -261,7 +261,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
     except AuxiliaryRewardError:
         # the file's failure ends the run; what was learnt so far is kept: the state the failed iteration began
         # with (a resumed run, after the file is fixed, starts there)
-        save = getattr(run.checkpoint, "save", None)
+        save = getattr(run.checkpoint, "save_after_failure", None)
         if save is not None:
             save()
         raise
