@@ -26,8 +26,10 @@ from __future__ import annotations
 import json
 import logging
 import math
+import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -45,6 +47,7 @@ from torchrl_ahrs.scheduling.settings import ScheduleSettings, interval_for
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 log = logging.getLogger(__name__)
+CLOSE_WAIT_SECONDS = 5.0  # how long the end of a run waits for a decision still being made in the background
 
 
 class WeightedEstimator(Protocol):
@@ -147,7 +150,6 @@ class RuleScheduler(TrainerHookBase):
             raise ValueError(f"{what} must be {len(self.components)} finite numbers, got {initial.tolist()}")
         if not keep:
             self.estimator.set_weights(initial.float())
-        self._executor: ThreadPoolExecutor | None = None
         self._pending: tuple[Future, DecisionContext] | None = None
         if note:
             log.warning("RuleScheduler: %s", note)
@@ -258,9 +260,7 @@ class RuleScheduler(TrainerHookBase):
         if self.blocking:
             self._apply(self._run_selector(context), context)
         else:
-            if self._executor is None:
-                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rule-selector")
-            self._pending = (self._executor.submit(self._run_selector, context), context)
+            self._pending = (_in_daemon_thread(self._run_selector, context), context)
             self._record(None, "decision requested in the background; weights kept until it arrives", summary)
 
     def _run_selector(self, context: DecisionContext) -> Decision:
@@ -360,13 +360,34 @@ class RuleScheduler(TrainerHookBase):
         self.statistics.load_state_dict(state_dict["statistics"])
         self.selector.load_state_dict(state_dict["selector"])
 
-    def close(self) -> None:
-        """Waits for a pending background decision (applies it) and releases the selector."""
-        if self._executor is not None:
-            self._executor.shutdown(wait=True)
+    def close(self, wait_seconds: float = CLOSE_WAIT_SECONDS) -> None:
+        """Waits up to ``wait_seconds`` for a pending background decision (applies it), else drops it and says
+        so; releases the selector. The selector's thread is a daemon: a silent server cannot hold up the exit."""
+        if self._pending is not None:
+            future, context = self._pending
+            try:
+                future.result(timeout=wait_seconds)
+            except FutureTimeout:
+                self._pending = None
+                self._record(None, f"decision still pending after {wait_seconds:g} s at shutdown; dropped")
+            except Exception:  # noqa: BLE001 (_collect_pending re-raises a fatal selector error)
+                pass
             self._collect_pending()
-            self._executor = None
         self.selector.close()
+
+
+def _in_daemon_thread(fn: Any, *args: Any) -> Future:
+    """``fn(*args)`` in a daemon thread, as a Future (a ``ThreadPoolExecutor``'s threads are joined at exit)."""
+    future: Future = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(fn(*args))
+        except BaseException as error:  # noqa: BLE001 (handed to whoever collects the future)
+            future.set_exception(error)
+
+    threading.Thread(target=run, name="rule-selector", daemon=True).start()
+    return future
 
 
 def _components_of(estimator: Any, components: list[str] | None) -> list[str]:
