@@ -147,7 +147,7 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
                 ]
                 continue
             path = _write(candidate_dir, source, task["name"], llm_cfg.model, first_prompt_hash, attempt)
-            load_aux_function(path)  # the file as written must load
+            load_aux_function(path, isolated=False)  # the file as written must load (its check ran in the child)
             candidate.path = str(path)
             if rounds == 0:
                 break  # no training feedback: the first accepted candidate is the answer

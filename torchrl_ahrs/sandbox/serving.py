@@ -67,13 +67,15 @@ def tensor_at(buffer: memoryview, spec: dict) -> torch.Tensor:
 
 
 def decode_arguments(buffer: memoryview, layout: list) -> list[Any]:
-    """The call's arguments from their layout: ``{"tensor": spec}``, ``{"dict": {name: spec}}``, ``{"value": x}``."""
+    """Views of the block for the call's arguments, from their layout: ``{"tensor": spec}``,
+    ``{"dict": {name: spec}}`` or ``{"value": x}``. They alias the block, which the session rewrites before
+    every call, so they are built once per layout (restricted code works on private copies of them)."""
     arguments: list[Any] = []
     for entry in layout:
         if "tensor" in entry:
-            arguments.append(tensor_at(buffer, entry["tensor"]).clone())
+            arguments.append(tensor_at(buffer, entry["tensor"]))
         elif "dict" in entry:
-            arguments.append({name: tensor_at(buffer, spec).clone() for name, spec in entry["dict"].items()})
+            arguments.append({name: tensor_at(buffer, spec) for name, spec in entry["dict"].items()})
         else:
             arguments.append(entry.get("value"))
     return arguments
@@ -84,9 +86,9 @@ def _one_line(text: str) -> str:
     return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS] + f"... ({len(text)} chars)"
 
 
-def call_function(fn, buffer: memoryview, request: dict, cpu_seconds: float) -> dict:
+def call_function(fn, buffer: memoryview, arguments: list[Any], request: dict, cpu_seconds: float) -> dict:
     """Runs one call on the shared block; the reply says where the output is, or why there is none."""
-    arguments = decode_arguments(buffer, request["args"])
+    arguments = [dict(value) if isinstance(value, dict) else value for value in arguments]  # its own dicts
     signal.setitimer(signal.ITIMER_PROF, cpu_seconds)
     try:
         output = fn(*arguments)
@@ -144,13 +146,16 @@ def serve(stdin: BinaryIO, stdout: BinaryIO) -> None:
     described = {name: {"parameters": _signature(fn), "doc": fn.__doc__} for name, fn in functions.items()}
     write_message(stdout, json.dumps({"ok": True, "functions": described}).encode())
     cpu_seconds = float(setup["cpu_seconds"])
+    views: list[Any] = []
     while (message := read_message(stdin)) is not None:
         request = json.loads(message)
+        if request.get("args") is not None:  # a new layout (None: the last one, rewritten in place)
+            views = decode_arguments(buffer, request["args"])
         fn = functions.get(request.get("fn"))
         if fn is None:
             reply = {"ok": False, "error": f"no function {request.get('fn')!r}"}
         else:
-            reply = call_function(fn, buffer, request, cpu_seconds)
+            reply = call_function(fn, buffer, views, request, cpu_seconds)
         write_message(stdout, json.dumps(reply).encode())
 
 

@@ -53,11 +53,16 @@ def _aligned(size: int) -> int:
 
 
 class _Layout:
-    """Where each argument tensor goes in the shared block, and the JSON that tells the worker."""
+    """Where each argument tensor goes in the shared block, and the JSON that tells the worker.
+
+    Tensors are placed back to back; when they share one dtype (an auxiliary reward's float32 step) they are
+    written with one ``torch.cat`` into the block. ``key`` identifies the layout: the worker keeps its views
+    of the block from the last call, so a step with the same layout sends no layout at all.
+    """
 
     def __init__(self, arguments: tuple):
         self.entries: list[dict] = []
-        self.tensors: list[tuple[int, torch.Tensor]] = []
+        self.tensors: list[torch.Tensor] = []
         self.size = 0
         for argument in arguments:
             if isinstance(argument, torch.Tensor):
@@ -68,13 +73,38 @@ class _Layout:
                 self.entries.append({"value": argument})
             else:
                 raise TypeError(f"cannot pass {type(argument).__name__} to sandboxed code (tensors, dicts, numbers)")
+        self.key = json.dumps(self.entries)
+        dtypes = {tensor.dtype for tensor in self.tensors}
+        self.packed = dtypes.pop() if len(dtypes) == 1 else None  # one dtype: contiguous, one write
+        self.output_offset = _aligned(self.size)
 
     def _place(self, value: Any) -> dict:
-        tensor = torch.as_tensor(value).detach().to("cpu").contiguous()
+        tensor = torch.as_tensor(value).detach().to("cpu")
+        size = tensor.element_size()
+        self.size = (self.size + size - 1) // size * size  # the element's own alignment: same dtypes stay contiguous
         spec = {"dtype": str(tensor.dtype).removeprefix("torch."), "shape": list(tensor.shape), "offset": self.size}
-        self.tensors.append((self.size, tensor))
-        self.size = _aligned(self.size + tensor.numel() * tensor.element_size())
+        self.tensors.append(tensor)
+        self.size += tensor.numel() * size
         return spec
+
+    def write(self, buffer: memoryview) -> None:
+        """Copies every argument tensor into ``buffer`` at its place."""
+        if self.packed is not None:
+            count = sum(tensor.numel() for tensor in self.tensors)
+            if count:
+                target = torch.frombuffer(buffer, dtype=self.packed, count=count)
+                torch.cat([tensor.reshape(-1) for tensor in self.tensors], out=target)
+            return
+        specs = [spec for entry in self.entries for spec in _specs(entry)]
+        for spec, tensor in zip(specs, self.tensors, strict=True):
+            if tensor.numel():
+                tensor_at(buffer, spec).copy_(tensor)
+
+
+def _specs(entry: dict) -> list[dict]:
+    if "tensor" in entry:
+        return [entry["tensor"]]
+    return list(entry.get("dict", {}).values())
 
 
 class SandboxSession:
@@ -118,6 +148,7 @@ class SandboxSession:
         self._block: mmap.mmap | None = None
         self._owner = -1
         self._functions: dict[str, dict] | None = None
+        self._last_layout: str | None = None
 
     # ---- the worker's life ------------------------------------------------------------------------------
 
@@ -137,6 +168,7 @@ class SandboxSession:
         finally:
             os.close(fd)
         self._owner = os.getpid()
+        self._last_layout: str | None = None  # a new worker has no views yet
         setup = {
             "fd": fd,
             "size": self.capacity,
@@ -250,27 +282,27 @@ class SandboxSession:
         layout = _Layout(arguments)
         output_size = _aligned(4 * max(1, int(torch.Size(expected_shape).numel())))
         with self._lock:
-            if layout.size + output_size > self.capacity:
+            if layout.output_offset + output_size > self.capacity:
                 self._stop()
-                self.capacity = max(2 * self.capacity, _aligned(2 * (layout.size + output_size)))
+                self.capacity = max(2 * self.capacity, _aligned(2 * (layout.output_offset + output_size)))
             self._ensure()
             assert self._block is not None
             with memoryview(self._block) as buffer:  # released before the exchange: a failure closes the block
-                for offset, tensor in layout.tensors:
-                    if tensor.numel():
-                        spec = {"dtype": str(tensor.dtype).removeprefix("torch."), "shape": list(tensor.shape)}
-                        tensor_at(buffer, {**spec, "offset": offset}).copy_(tensor)
+                layout.write(buffer)
+            same = layout.key == self._last_layout  # the worker still holds its views of this layout
             request = {
                 "fn": name,
-                "args": layout.entries,
+                "args": None if same else layout.entries,
                 "expected_shape": list(expected_shape),
-                "output_offset": layout.size,
+                "output_offset": layout.output_offset,
             }
             reply = self._exchange(request, self.wall_seconds, f"{name}()")
+            self._last_layout = layout.key
             if not reply.get("ok"):
                 raise SandboxCallError(f"{self.filename}: {name}: {reply.get('error')}")
             with memoryview(self._block) as buffer:
-                return tensor_at(buffer, {"dtype": "float32", "shape": reply["shape"], "offset": layout.size}).clone()
+                spec = {"dtype": "float32", "shape": reply["shape"], "offset": layout.output_offset}
+                return tensor_at(buffer, spec).clone()
 
 
 class IsolatedFunction:
