@@ -15,6 +15,7 @@ starts a fresh process (a rule's caller keeps its weights and goes on; an auxili
 
 from __future__ import annotations
 
+import ast
 import inspect
 import json
 import mmap
@@ -334,9 +335,27 @@ class IsolatedFunction:
         return self.session.call(self.__name__, *arguments, expected_shape=expected)
 
 
+def describe_functions(source: str) -> dict[str, dict]:
+    """``{name: {"parameters": [...], "doc": str | None}}`` of the source's top-level functions, read from its
+    syntax tree (no worker needed: a probe environment that never calls the function starts none).
+
+    Example:
+        >>> describe_functions("def rule(m, v, h, w):\\n    '''Doubles.'''\\n    return m * 2\\n")
+        {'rule': {'parameters': ['m', 'v', 'h', 'w'], 'doc': 'Doubles.'}}
+    """
+    described = {}
+    for node in ast.parse(source).body:
+        if isinstance(node, ast.FunctionDef):
+            arguments = [*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs]
+            doc = ast.get_docstring(node, clean=False)
+            described[node.name] = {"parameters": [argument.arg for argument in arguments], "doc": doc}
+    return described
+
+
 def isolated_functions(session: SandboxSession, kind: str) -> dict[str, IsolatedFunction]:
-    """Every top-level function of the session's file as an :class:`IsolatedFunction` (starts the worker)."""
+    """Every top-level function of the session's file as an :class:`IsolatedFunction` (the worker starts at the
+    first call; the caller has checked the source statically)."""
     return {
         name: IsolatedFunction(session, name, info["parameters"], info.get("doc"), kind)
-        for name, info in session.functions().items()
+        for name, info in describe_functions(session.source).items()
     }
