@@ -169,7 +169,7 @@ class SandboxSession:
         finally:
             os.close(fd)
         self._owner = os.getpid()
-        self._last_layout: str | None = None  # a new worker has no views yet
+        self._last_layout = None  # a new worker has no views yet
         setup = {
             "fd": fd,
             "size": self.capacity,

@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import threading
 import time
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
@@ -37,6 +36,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.trainers import TrainerHookBase
 
+from torchrl_ahrs.common.background import in_daemon_thread
 from torchrl_ahrs.common.text import error_line, one_line
 from torchrl_ahrs.llm.client import FatalSelectorError
 from torchrl_ahrs.rewards.components import EPISODE_REWARD, TOTAL, finished_episode_returns
@@ -260,7 +260,7 @@ class RuleScheduler(TrainerHookBase):
         if self.blocking:
             self._apply(self._run_selector(context), context)
         else:
-            self._pending = (_in_daemon_thread(self._run_selector, context), context)
+            self._pending = (in_daemon_thread(self._run_selector, context, name="rule-selector"), context)
             self._record(None, "decision requested in the background; weights kept until it arrives", summary)
 
     def _run_selector(self, context: DecisionContext) -> Decision:
@@ -269,8 +269,8 @@ class RuleScheduler(TrainerHookBase):
         except FatalSelectorError:
             raise  # e.g. a replay miss: continuing would silently diverge from the recorded run
         except Exception as error:  # noqa: BLE001 (a selector failure must not stop training)
-            log.warning("selector %s failed: %s", self.selector.name, error_line(error))
-            log.debug("selector failure", exc_info=True)
+            # one capped line; the traceback only when debugging (a huge message would fill every log)
+            log.warning("selector %s failed: %s", self.selector.name, error_line(error), exc_info=log.isEnabledFor(10))
             return Decision(self.selector.name, note=f"selector failed: {error_line(error)}")
 
     def _collect_pending(self) -> None:
@@ -364,9 +364,8 @@ class RuleScheduler(TrainerHookBase):
         """Waits up to ``wait_seconds`` for a pending background decision (applies it), else drops it and says
         so; releases the selector. The selector's thread is a daemon: a silent server cannot hold up the exit."""
         if self._pending is not None:
-            future, context = self._pending
             try:
-                future.result(timeout=wait_seconds)
+                self._pending[0].result(timeout=wait_seconds)
             except FutureTimeout:
                 self._pending = None
                 self._record(None, f"decision still pending after {wait_seconds:g} s at shutdown; dropped")
@@ -374,20 +373,6 @@ class RuleScheduler(TrainerHookBase):
                 pass
             self._collect_pending()
         self.selector.close()
-
-
-def _in_daemon_thread(fn: Any, *args: Any) -> Future:
-    """``fn(*args)`` in a daemon thread, as a Future (a ``ThreadPoolExecutor``'s threads are joined at exit)."""
-    future: Future = Future()
-
-    def run() -> None:
-        try:
-            future.set_result(fn(*args))
-        except BaseException as error:  # noqa: BLE001 (handed to whoever collects the future)
-            future.set_exception(error)
-
-    threading.Thread(target=run, name="rule-selector", daemon=True).start()
-    return future
 
 
 def _components_of(estimator: Any, components: list[str] | None) -> list[str]:
