@@ -18,6 +18,7 @@ import os
 import sys
 import traceback
 from pathlib import Path
+from typing import Any
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -33,8 +34,27 @@ from torchrl_ahrs.rewards.auxiliary import AuxiliaryRewardError
 __all__ = ["main", "redact", "train"]
 
 
+class _RedactingStream:
+    """A text stream that replaces each of ``secrets`` before writing: Hydra's own messages (a composition error
+    quotes the override, ``+llm.api_key=sk-...``) are printed before any of our code could catch them."""
+
+    def __init__(self, stream: Any, secrets: set[str]):
+        self.stream, self.secrets = stream, sorted(secrets, key=len, reverse=True)
+
+    def write(self, text: str) -> int:
+        for secret in self.secrets:
+            text = text.replace(secret, REDACTED)
+        return self.stream.write(text)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
 def main() -> None:
     """Refuses renamed keys on the command line (Hydra would only say "not in struct"), then runs."""
+    secrets = secret_values({}, sys.argv[1:])
+    if secrets:  # every line this process prints, Hydra's included, without the command line's secrets
+        sys.stdout, sys.stderr = _RedactingStream(sys.stdout, secrets), _RedactingStream(sys.stderr, secrets)
     try:
         refuse_renamed(argument.split("=", 1)[0] for argument in sys.argv[1:] if "=" in argument)
     except ConfigError as error:
