@@ -22,6 +22,7 @@ from torchrl_ahrs.rewards.auxiliary import (
     AUX,
     TOTAL_AUX,
     AuxiliaryReward,
+    AuxiliaryRewardError,
     aux_inputs,
     file_digest,
     load_aux_function,
@@ -128,9 +129,9 @@ def test_transform_writes_aux_and_total_aux_next_to_the_native_reward():
 def test_transform_stops_on_wrong_shape_or_nan():
     step = TensorDict({"observation": torch.zeros(3, 2), "reward": {"total": torch.zeros(3, 1)}}, [3])
     action = TensorDict({"action": torch.zeros(3, 1)}, [3])
-    with pytest.raises(ValueError, match="shape"):
+    with pytest.raises(AuxiliaryRewardError, match="shape"):
         AuxiliaryReward(lambda obs: obs["observation"])._step(action, step.clone())
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(AuxiliaryRewardError, match="not finite"):
         AuxiliaryReward(lambda obs: obs["reward.total"] / 0.0)._step(action, step.clone())
 
 

@@ -100,7 +100,7 @@ def test_normalise_is_a_distribution_invariant_to_scale_and_shift(values, scale,
 
 def test_rule_output_is_validated():
     rule = REPO.get("mean_returns_only")
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(ValueError, match="not finite"):
         rule.scores(torch.tensor([1.0, float("nan")]), torch.zeros(2), torch.zeros(5, 2), torch.ones(2))
 
 

@@ -298,3 +298,40 @@ def test_build_scheduler_has_a_default_for_every_key():
     scheduler = build_scheduler(SchedulerSettings(), NamedEstimator(COMPONENTS, [1.0, 1.0, 1.0]))
     assert scheduler.selector.name == "constant" and scheduler.interval == 100
     assert scheduler.weights.tolist() == [0.5, 0.5, 0.5]  # initial_weights: null = base_weight
+
+
+class SilentSelector(Selector):
+    name = "silent"
+
+    def select(self, context):
+        time.sleep(30)  # a server that never answers within the run
+        return Decision(self.name, rule_id=1)
+
+
+def test_shutdown_does_not_wait_for_a_silent_background_decision():
+    scheduler = RuleScheduler(FakeEstimator(3), COMPONENTS, REPO, SilentSelector(), interval=1, blocking=False)
+    run(scheduler, [make_batch([[1.0, 2.0, 4.0]])])
+    started = time.monotonic()
+    scheduler.close(wait_seconds=0.5)
+    assert time.monotonic() - started < 3 and scheduler.rule_id is None
+
+
+def test_a_rule_raising_a_huge_message_is_recorded_in_one_capped_line(tmp_path, caplog):
+    from torchrl_ahrs.scheduling.rules import RuleRepository, rules_from_source
+
+    source = "def loud(m, v, h, w):\n    k = {}\n    return k['x' * 1000000]\n"  # KeyError of a 1 MB key
+    repository = RuleRepository(rules_from_source(source))
+    decisions = tmp_path / "decisions.jsonl"
+    scheduler = RuleScheduler(
+        FakeEstimator(3),
+        COMPONENTS,
+        repository,
+        FixedSelector(repository, "loud"),
+        interval=1,
+        decisions_path=decisions,
+    )
+    caplog.set_level(logging.INFO)
+    run(scheduler, [make_batch([[1.0, 2.0, 4.0]])])
+    assert scheduler.weights.tolist() == [0.5, 0.5, 0.5]  # fell back: weights kept
+    assert "rule failed (KeyError" in decisions.read_text() and decisions.stat().st_size < 5000
+    assert len(caplog.text) < 5000

@@ -140,3 +140,69 @@ def test_callback_rewrites_job_and_sweep_files(tmp_path):
     callback.on_multirun_end(config=cfg)
     assert files_containing(tmp_path, [key]) == []
     assert (tmp_path / ".hydra" / "overrides.yaml").read_text() == "- llm.api_key=<redacted>\n- llm.max_tokens=1024\n"
+
+
+def test_an_answer_echoing_the_key_is_masked_and_a_huge_answer_is_capped(llm_server, tmp_path, monkeypatch):
+    env_key = fake_key("echo")
+    monkeypatch.setenv("TEST_SECRETS_KEY", env_key)
+    llm_server.script = [("ok", f"your key is {env_key} ~[3]~" + "x" * 200_000)]
+    config = LLMConfig(model="openai/m", api_base=llm_server.api_base, api_key_env="TEST_SECRETS_KEY", timeout=5)
+    reply = LLMClient(config, calls_path=tmp_path / LLM_CALLS, sleep=lambda seconds: None).complete(
+        [{"role": "user", "content": "x"}], "t"
+    )
+    assert reply.text is not None and env_key not in reply.text and "your key is *** ~[3]~" in reply.text
+    logged = (tmp_path / LLM_CALLS).read_text()
+    assert env_key not in logged and len(logged) < 100_000  # capped at LOGGED_ANSWER_CHARS
+
+
+def test_redact_replaces_config_and_environment_secrets(monkeypatch):
+    from omegaconf import OmegaConf
+
+    from torchrl_ahrs.train import redact
+
+    env_key, config_key = fake_key("env"), fake_key("config")
+    monkeypatch.setenv("SOME_SERVICE_TOKEN", env_key)
+    text = redact(
+        f"Error executing job with overrides: ['llm.api_key={config_key}'] {env_key}",
+        OmegaConf.create({"llm": {"api_key": config_key}}),
+    )
+    assert config_key not in text and env_key not in text and "llm.api_key=<redacted>" in text
+
+
+@pytest.mark.slow
+def test_hydra_messages_and_a_stopped_run_print_no_key(tmp_path):
+    key = fake_key("cli")
+    late = tmp_path / "late.py"
+    late.write_text(
+        "import torch\ncalls = [0]\n\ndef compute_aux_reward(obs):\n    calls[0] = calls[0] + 1\n"
+        "    if calls[0] > 40:\n        return obs['no such key']\n    return obs['reward.total'] * 0.0\n"
+    )
+    common = [
+        sys.executable,
+        "-m",
+        "torchrl_ahrs.train",
+        "task=point_reach",
+        "trainer.total_frames=2048",
+        "trainer.num_envs=16",
+        "trainer.frames_per_batch=512",
+        "trainer.mini_batch_size=128",
+        "trainer.num_epochs=1",
+        "trainer.progress_bar=false",
+        "method=hdppo_a",
+        f"aux.path={late}",
+    ]
+    # llm=offline has no api_key: Hydra's own composition error quotes the override
+    refused = subprocess.run(
+        [*common, f"llm.api_key={key}", f"hydra.run.dir={tmp_path / 'a'}"], capture_output=True, text=True, timeout=300
+    )
+    assert refused.returncode != 0 and "llm.api_key=<redacted>" in refused.stderr
+    stopped = subprocess.run(
+        [*common, "llm=openai", f"llm.api_key={key}", f"hydra.run.dir={tmp_path / 'b'}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert stopped.returncode == 2 and (tmp_path / "b" / "checkpoint.pt").is_file()
+    assert "KeyError: 'no such key'" in stopped.stderr and "Error executing job" not in stopped.stderr
+    for done in (refused, stopped):
+        assert key not in done.stdout and key not in done.stderr

@@ -88,9 +88,16 @@ def collect_aux_inputs(
 
 
 def validate_aux_file(
-    path: str | Path, task_cfg: Mapping[str, Any], num_envs: int = 8, steps: int = 16, seed: int = 0
+    path: str | Path,
+    task_cfg: Mapping[str, Any],
+    num_envs: int = 8,
+    steps: int = 16,
+    seed: int = 0,
+    batch_size: int | None = None,
 ) -> Any:
-    """All sandbox gates for an auxiliary reward file, the child run on real transitions of the task.
+    """All sandbox gates for an auxiliary reward file, the child run on real transitions of the task (and at
+    ``batch_size``, the number of environments training steps at once: a fault that shows only there is
+    refused here, not at the first training step).
 
     Returns the sandbox's ``Verdict`` (``ok``, ``reasons``).
     """
@@ -108,7 +115,7 @@ def validate_aux_file(
     with tempfile.TemporaryDirectory() as scratch:
         inputs_path = Path(scratch) / "inputs.pt"
         torch.save(inputs, inputs_path)
-        return validate_in_child(path, "aux", inputs_path=inputs_path)
+        return validate_in_child(path, "aux", inputs_path=inputs_path, batch_size=batch_size)
 
 
 def infer_aux_task(path: str | Path) -> str | None:
@@ -135,6 +142,20 @@ def sandbox_aux_inputs(path: str, task: str | None = None) -> dict[str, torch.Te
     return collect_aux_inputs(cast(dict[str, Any], OmegaConf.to_container(load_task_config(name), resolve=True)))
 
 
+def training_batch_size(cfg: Any) -> int | None:
+    """How many environments one call of the auxiliary reward sees in training (per collector worker).
+
+    Example:
+        >>> training_batch_size({"trainer": {"num_envs": 64, "collector": "multi", "workers": 2}})
+        32
+    """
+    num_envs = _select(cfg, "trainer.num_envs")
+    if num_envs is None:
+        return None
+    workers = int(_select(cfg, "trainer.workers", 1)) if _select(cfg, "trainer.collector") == "multi" else 1
+    return max(1, int(num_envs) // max(1, workers))
+
+
 def auxiliary_transform(cfg: Any, check: bool = True) -> TransformFactory | None:
     """A picklable factory of the run's :class:`AuxiliaryReward`, or None when the method uses none.
 
@@ -158,7 +179,7 @@ def auxiliary_transform(cfg: Any, check: bool = True) -> TransformFactory | None
     scale = float(_select(cfg, "aux.scale", 1.0))
     if check:
         task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
-        verdict = validate_aux_file(path, task, seed=int(_select(cfg, "seed", 0)))
+        verdict = validate_aux_file(path, task, seed=int(_select(cfg, "seed", 0)), batch_size=training_batch_size(cfg))
         if not verdict.ok:
             raise ConfigError(
                 f"auxiliary reward {path} refused by the sandbox; training not started:\n  - "

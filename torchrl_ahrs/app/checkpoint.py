@@ -37,11 +37,15 @@ second time, the trainer's counters) cannot be resumed; evaluation still reads t
 On resume, metric rows and scheduler decisions logged after the checkpoint (by the iterations that
 were lost) are removed, so each iteration appears exactly once. The LLM calls log is an audit log of
 real calls and is never truncated.
+
+A run stopped by a failing auxiliary reward saves what it can (:meth:`CheckpointHook.save_after_failure`):
+the collector, shut down with the failure, is saved as None, and a run resumed from it starts new episodes.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import random
 from collections.abc import Callable, Mapping, Sequence
@@ -53,6 +57,8 @@ import torch
 
 from torchrl_ahrs.app.errors import ConfigError
 from torchrl_ahrs.app.run_dir import RunDirectory
+
+log = logging.getLogger(__name__)
 
 
 def save_atomic(state: dict[str, Any], path: Path) -> None:
@@ -115,14 +121,26 @@ def truncate_jsonl(path: Path, last_frames: int, frames_field: str = "frames") -
     return len(lines) - len(kept)
 
 
-def registry_state(registry: Mapping[str, Any]) -> dict[str, Any]:
+def registry_state(registry: Mapping[str, Any], skip_failed: bool = False) -> dict[str, Any]:
     """``{name: obj.state_dict()}``: what a checkpoint holds.
+
+    ``skip_failed``: an entry whose ``state_dict`` raises is saved as None (a run stopped by a failing
+    auxiliary reward: its collector was shut down with the failure; a resumed run starts fresh episodes).
 
     Example:
         >>> registry_state({"rng": GeneratorState(torch.Generator().manual_seed(0))})["rng"]["generator"].dtype
         torch.uint8
     """
-    return {name: obj.state_dict() for name, obj in registry.items()}
+    if not skip_failed:
+        return {name: obj.state_dict() for name, obj in registry.items()}
+    state: dict[str, Any] = {}
+    for name, obj in registry.items():
+        try:
+            state[name] = obj.state_dict()
+        except Exception as error:  # noqa: BLE001 (the rest of the run's state is still worth keeping)
+            log.warning("checkpoint after the failure: no %s state (%s: %s)", name, type(error).__name__, error)
+            state[name] = None
+    return state
 
 
 def load_registry(registry: Mapping[str, Any], state: Mapping[str, Any], path: Path | str = "the checkpoint") -> None:
@@ -138,6 +156,9 @@ def load_registry(registry: Mapping[str, Any], state: Mapping[str, Any], path: P
             "layout) and cannot be resumed; start a new run (evaluation still reads its actor)"
         )
     for name, obj in registry.items():
+        if state[name] is None:  # written when a run stopped (registry_state(skip_failed=True))
+            log.warning("%s holds no %s state (saved when the run stopped): it starts fresh", path, name)
+            continue
         obj.load_state_dict(state[name])
 
 
@@ -217,12 +238,14 @@ class CheckpointHook:
         state_fn: Callable[[], dict[str, Any]],
         components: Sequence[str] = (),
         is_last: Callable[[], bool] = lambda: False,
+        state_after_failure: Callable[[], dict[str, Any]] | None = None,
     ):
         self.path = Path(path)
         self.interval = interval
         self.state_fn = state_fn
         self.components = list(components)
         self.is_last = is_last
+        self.state_after_failure = state_after_failure or state_fn
         self.iteration = 0
 
     def __call__(self) -> None:
@@ -232,6 +255,10 @@ class CheckpointHook:
 
     def save(self) -> None:
         save_atomic(self.state_fn(), self.path)
+
+    def save_after_failure(self) -> None:
+        """Saves what can be saved when the run stops on a failure (``state_after_failure``)."""
+        save_atomic(self.state_after_failure(), self.path)
 
     def state_dict(self) -> dict[str, Any]:
         return {"iteration": self.iteration, "components": self.components}

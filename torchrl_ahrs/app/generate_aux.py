@@ -37,6 +37,7 @@ from torchrl_ahrs.app.aux_rounds import Candidate, choose, scores_text, train_ro
 from torchrl_ahrs.app.auxiliary import collect_aux_inputs
 from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.app.settings import generation_output_dir, llm_and_task, select
+from torchrl_ahrs.common.text import ANSWER_CHARS, cap_text
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt, training_feedback_message
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
 from torchrl_ahrs.llm.generation import extract_code_blocks
@@ -139,10 +140,14 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
             candidates.append(candidate)
             if reasons:
                 result.refusals.append(reasons)
-                messages = [*messages, {"role": "assistant", "content": reply.text}, aux_feedback_message(reasons)]
+                messages = [
+                    *messages,
+                    {"role": "assistant", "content": cap_text(reply.text, ANSWER_CHARS)},
+                    aux_feedback_message(reasons),
+                ]
                 continue
             path = _write(candidate_dir, source, task["name"], llm_cfg.model, first_prompt_hash, attempt)
-            load_aux_function(path)  # the file as written must load
+            load_aux_function(path, isolated=False)  # the file as written must load (its check ran in the child)
             candidate.path = str(path)
             if rounds == 0:
                 break  # no training feedback: the first accepted candidate is the answer
@@ -151,7 +156,7 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
             if sum(1 for c in candidates if c.scores) >= rounds:
                 break
             feedback = training_feedback_message(scores_text(candidate.scores, _round_components(cfg), frames))
-            messages = [*messages, {"role": "assistant", "content": reply.text}, feedback]
+            messages = [*messages, {"role": "assistant", "content": cap_text(reply.text, ANSWER_CHARS)}, feedback]
     chosen = choose(candidates)
     write_index(output_dir, candidates, chosen, {"train_frames": frames if rounds else 0})
     if chosen is not None:

@@ -143,6 +143,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         lambda: registry_state(registry),
         components,
         is_last=lambda: progress.collected_frames >= cfg.trainer.total_frames,
+        state_after_failure=lambda: registry_state(registry, skip_failed=True),
     )
     registry["checkpoint"] = checkpoint
     if resumed:

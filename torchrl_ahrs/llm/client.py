@@ -47,6 +47,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from torchrl_ahrs.common.text import LOGGED_ANSWER_CHARS, cap_text, one_line
+
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
 
 from torchrl_ahrs.llm.provider import import_litellm, is_missing_credentials, retry_after, root_cause  # noqa: E402
@@ -179,7 +181,7 @@ class LLMClient:
             try:
                 reply.parsed = parser(reply.text)
             except ValueError as error:
-                reply.parse_error = str(error)
+                reply.parse_error = one_line(error)  # a parser may quote the whole answer
         self._log(purpose, digest, messages, reply)
         return reply
 
@@ -238,7 +240,7 @@ class LLMClient:
                     )
                     break
                 continue
-            text = response.choices[0].message.content or ""
+            text = self._mask(response.choices[0].message.content or "")  # an answer echoing the key keeps none of it
             usage = getattr(response, "usage", None)
             tokens = {
                 key: int(getattr(usage, key, 0) or 0) for key in ("prompt_tokens", "completion_tokens", "total_tokens")
@@ -313,7 +315,7 @@ class LLMClient:
             "api_base": self.config.api_base,
             "prompt_hash": digest,
             "prompt": messages,
-            "response": reply.text,
+            "response": cap_text(reply.text, LOGGED_ANSWER_CHARS) if reply.text is not None else None,
             "parsed": reply.parsed,
             "parse_error": reply.parse_error,
             "latency": round(reply.latency, 4),
@@ -326,7 +328,7 @@ class LLMClient:
         with self._lock:
             self.calls_path.parent.mkdir(parents=True, exist_ok=True)
             with open(self.calls_path, "a") as handle:
-                handle.write(json.dumps(entry, default=str) + "\n")
+                handle.write(self._mask(json.dumps(entry, default=str)) + "\n")  # the key never reaches the file
 
 
 def credential_problem(config: LLMConfig) -> str | None:

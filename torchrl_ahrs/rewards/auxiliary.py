@@ -44,6 +44,16 @@ _SKIPPED_ROOTS = ("episode_reward",)  # RewardSum accumulators: not part of one 
 log = logging.getLogger("torchrl_ahrs.aux")
 
 AuxFn = Callable[[dict[str, torch.Tensor]], torch.Tensor]
+MAX_ERROR_CHARS = 500  # an error's text in logs and on the console
+
+
+class AuxiliaryRewardError(RuntimeError):
+    """The auxiliary reward failed on a step (one line naming the file); training stops with a checkpoint written.
+
+    Example:
+        >>> str(AuxiliaryRewardError("auxiliary reward a.py: compute_aux_reward: raised KeyError: 'x'"))[:25]
+        'auxiliary reward a.py: co'
+    """
 
 
 def aux_inputs(
@@ -82,20 +92,28 @@ def flatten_inputs(inputs: Mapping[str, torch.Tensor], batch_ndim: int) -> dict[
 
 
 def check_aux_output(output: Any, batch_size: int) -> torch.Tensor:
-    """The function's output as float32 ``[N]``; raises ``ValueError`` on a wrong shape or a non-finite value."""
-    if not isinstance(output, torch.Tensor):
-        raise ValueError(f"{AUX_FUNCTION} returned {type(output).__name__}, expected a tensor of shape [{batch_size}]")
-    if output.shape == (batch_size, 1):
-        output = output.squeeze(-1)
-    if tuple(output.shape) != (batch_size,):
-        raise ValueError(f"{AUX_FUNCTION} returned shape {tuple(output.shape)}, expected ({batch_size},)")
-    output = output.to(torch.float32)
-    # the finiteness test reads a flag back from the device: per step on the CPU only; on an accelerator the
-    # run's FiniteGuard stops training at the first batch holding a non-finite aux reward instead
-    if output.device.type == "cpu" and not torch.isfinite(output).all():
-        bad = int((~torch.isfinite(output)).sum())
-        raise ValueError(f"{AUX_FUNCTION} returned {bad} non-finite value(s) (NaN or inf)")
-    return output
+    """The function's output as float32 ``[N]`` by the sandbox's output contract (the check applies the same:
+    a tensor, array or list of ``N`` or ``[N, 1]`` finite numbers); raises ``ValueError`` otherwise.
+
+    Example:
+        >>> import numpy as np
+        >>> check_aux_output(np.zeros((3, 1)), 3).tolist()
+        [0.0, 0.0, 0.0]
+    """
+    from torchrl_ahrs.sandbox.cases import output_contract  # the sandbox imports numpy, RestrictedPython: lazy
+
+    if isinstance(output, torch.Tensor) and output.device.type != "cpu":
+        # the finiteness test reads a flag back from the device: per step on the CPU only; on an accelerator the
+        # run's FiniteGuard stops training at the first batch holding a non-finite aux reward instead
+        if output.shape == (batch_size, 1):
+            output = output.squeeze(-1)
+        if tuple(output.shape) != (batch_size,):
+            raise ValueError(f"{AUX_FUNCTION}: output shape {tuple(output.shape)}, expected ({batch_size},)")
+        return output.to(torch.float32)
+    tensor, problem = output_contract(output, (batch_size,))
+    if tensor is None:
+        raise ValueError(f"{AUX_FUNCTION}: {problem}")
+    return tensor
 
 
 def file_digest(path: str | Path) -> str:
@@ -112,8 +130,12 @@ def shipped_aux_path(task_name: str) -> Path:
     return path
 
 
-def load_aux_function(path: str | Path, expected_digest: str | None = None) -> AuxFn:
+def load_aux_function(path: str | Path, expected_digest: str | None = None, isolated: bool | None = None) -> AuxFn:
     """Loads ``compute_aux_reward`` from ``path`` through the sandbox's static gate and restricted execution.
+
+    ``isolated``: call it in a :class:`~torchrl_ahrs.sandbox.session.SandboxSession` (a key-free worker with
+    the check's limits, inputs and outputs in shared memory) instead of in this process; None: every file but
+    the shipped ones (``aux_rewards/``, hand-written, part of the package's reviewed code).
 
     Raises:
         ValueError: the sandbox refuses the code, the function is missing, or the file changed since it
@@ -125,7 +147,13 @@ def load_aux_function(path: str | Path, expected_digest: str | None = None) -> A
     source = path.read_bytes()
     if expected_digest is not None and hashlib.sha256(source).hexdigest() != expected_digest:
         raise ValueError(f"{path} changed after it was validated (digest mismatch)")
-    functions = load_functions(source.decode(), str(path))
+    functions: Mapping[str, Callable] = load_functions(source.decode(), str(path))  # the static gate, here
+    if isolated is None:
+        isolated = path.resolve().parent != SHIPPED_DIR.resolve()
+    if isolated:
+        from torchrl_ahrs.sandbox.session import SandboxSession, isolated_functions
+
+        functions = isolated_functions(SandboxSession(source.decode(), str(path)), "aux")
     if AUX_FUNCTION not in functions:
         raise ValueError(f"{path} defines no function {AUX_FUNCTION}(obs); it defines {sorted(functions)}")
     return functions[AUX_FUNCTION]
@@ -136,8 +164,9 @@ class AuxiliaryReward(ComponentLeaves):
 
     Append it after :class:`~torchrl_ahrs.rewards.RewardComponents` (the reward must already be a tree)
     and before ``RewardSum``. ``fn`` gets the step as ``{name: [N, ...]}`` (:func:`aux_inputs`) and must
-    return ``[N]`` (or ``[N, 1]``) finite values; anything else stops training with a ``ValueError`` (on an
-    accelerator, a non-finite value is caught once per batch, by the trainer's ``FiniteGuard``).
+    return ``[N]`` (or ``[N, 1]``) finite values; anything else, or any error it raises, stops training with an
+    :class:`AuxiliaryRewardError` (on an accelerator, a non-finite value is caught once per batch, by the
+    trainer's ``FiniteGuard``).
 
     Args:
         fn: ``compute_aux_reward(obs: dict[str, Tensor [N, ...]]) -> Tensor [N]``.
@@ -165,9 +194,11 @@ class AuxiliaryReward(ComponentLeaves):
         self.reward_key = reward_key
 
     @classmethod
-    def from_file(cls, path: str | Path, scale: float = 1.0, expected_digest: str | None = None) -> AuxiliaryReward:
+    def from_file(
+        cls, path: str | Path, scale: float = 1.0, expected_digest: str | None = None, isolated: bool | None = None
+    ) -> AuxiliaryReward:
         """Loads ``compute_aux_reward`` from a sandbox-checked file (see :func:`load_aux_function`)."""
-        fn = load_aux_function(path, expected_digest)
+        fn = load_aux_function(path, expected_digest, isolated)
         return cls(fn, scale, source=f"{path} (sha256 {file_digest(path)[:12]})")
 
     def compute(self, action: torch.Tensor | None, next_tensordict: TensorDictBase) -> torch.Tensor:
@@ -177,8 +208,10 @@ class AuxiliaryReward(ComponentLeaves):
         with torch.no_grad():
             try:
                 raw = check_aux_output(self.fn(inputs), batch_shape.numel())
-            except ValueError as error:
-                raise ValueError(f"auxiliary reward {self.source}: {error}") from error
+            except Exception as error:  # noqa: BLE001 (whatever the file did, the run stops with one line naming it)
+                text = " ".join(f"{type(error).__name__}: {error}".split())
+                text = text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS] + f"... ({len(text)} chars)"
+                raise AuxiliaryRewardError(f"auxiliary reward {self.source}: {text}") from error
         return (self.scale * raw).reshape(*batch_shape, 1)  # r_aux = scale · f(obs)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:

@@ -23,12 +23,17 @@ names this project would have to grow by hand:
    installation, and a wall-clock deadline; the report comes back as JSON. One worker process per
    parent forks the children, so a check costs milliseconds after the worker's ~1 s start.
 
-Why both: RestrictedPython decides what code may *say*; it cannot bound CPU, memory or what torch's C
-code does. The child bounds those; it cannot stop code that later runs inside the training process.
-Accepted code does run there (every environment step for auxiliary rewards), still compiled by
-RestrictedPython with the same guards and the per-call loop budget; the residual risk is a call that
-is slow or large only on inputs unlike those validated (callers treat a raised error as a failed
-decision or a stopped run).
+3. **The same protection at time of use** (:mod:`~torchrl_ahrs.sandbox.session`,
+   :mod:`~torchrl_ahrs.sandbox.serving`). Code that holds back until after the check's few calls (a call
+   counter, a trigger on input values) must meet the same limits when training calls it: an accepted
+   file's functions are served by a :class:`SandboxSession`, a key-free process with the check's rlimits
+   and audit hook, a CPU timer and a wall clock per call; tensors cross in shared memory. Rules from a
+   file (``scheduler.rules``) and auxiliary rewards from a file (``aux.path``) are used this way; the
+   shipped, hand-written ones run in-process.
+
+Why all three: RestrictedPython decides what code may *say*; it cannot bound CPU, memory or what torch's
+C code does. The processes bound those, in the check and for every later call. Both apply one output
+contract (:func:`output_contract`: dtype, shape at the training batch size, finite values).
 
 This package depends on the standard library, torch, numpy and RestrictedPython only; task knowledge
 (K, transitions) is passed in by the caller. Command line: ``python -m torchrl_ahrs.sandbox check FILE
@@ -41,25 +46,38 @@ Example:
     (True, False)
 """
 
-from torchrl_ahrs.sandbox.cases import AUX_FUNCTION, RULE_ARITY, aux_cases, check_output, rule_cases, validate
+from torchrl_ahrs.sandbox.cases import (
+    AUX_FUNCTION,
+    RULE_ARITY,
+    aux_cases,
+    check_output,
+    output_contract,
+    rule_cases,
+    validate,
+)
 from torchrl_ahrs.sandbox.guards import ALLOWED_MODULES, SandboxRefusal
 from torchrl_ahrs.sandbox.isolation import check, check_file, start_worker, validate_in_child, validate_source
 from torchrl_ahrs.sandbox.policy import Verdict, check_source
 from torchrl_ahrs.sandbox.runtime import LoopBudget, load_functions
+from torchrl_ahrs.sandbox.session import SandboxCallError, SandboxSession, isolated_functions
 
 __all__ = [
     "ALLOWED_MODULES",
     "AUX_FUNCTION",
     "RULE_ARITY",
     "LoopBudget",
+    "SandboxCallError",
     "SandboxRefusal",
+    "SandboxSession",
     "Verdict",
     "aux_cases",
     "check",
     "check_file",
     "check_output",
     "check_source",
+    "isolated_functions",
     "load_functions",
+    "output_contract",
     "rule_cases",
     "start_worker",
     "validate",

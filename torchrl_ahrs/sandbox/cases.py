@@ -12,6 +12,8 @@ import inspect
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import numpy
+import numpy.ma
 import torch
 
 from torchrl_ahrs.sandbox.guards import SandboxRefusal
@@ -66,12 +68,16 @@ def rule_cases(num_components: int | Sequence[int] | None = None, seed: int = 0)
     return cases
 
 
-def aux_cases(inputs: Mapping[str, torch.Tensor] | None = None, seed: int = 0) -> list[tuple[str, tuple]]:
+def aux_cases(
+    inputs: Mapping[str, torch.Tensor] | None = None, seed: int = 0, batch_size: int | None = None
+) -> list[tuple[str, tuple]]:
     """Auxiliary-reward inputs ``(label, (obs,))`` with ``obs: dict[str, Tensor [N, ...]]``.
 
     ``inputs``: real transitions of the task (the caller collects them); the cases are that batch, its
-    first row alone (N = 1) and an all-zero batch of the same layout. Without ``inputs``, random
-    ``{"observation": [N, D], "action": [N, A]}`` dicts.
+    first row alone (N = 1), the batch at the training batch size ``batch_size`` (the number of environments
+    stepped at once; rows repeated when the batch has fewer) and an all-zero batch of the same layout.
+    Without ``inputs``, random ``{"observation": [N, D], "action": [N, A]}`` dicts (and, with ``batch_size``,
+    one at that N).
 
     Example:
         >>> [label for label, _ in aux_cases({"observation": torch.zeros(4, 3)})]
@@ -81,10 +87,15 @@ def aux_cases(inputs: Mapping[str, torch.Tensor] | None = None, seed: int = 0) -
         batch = dict(inputs)
         first_row = {name: value[:1] for name, value in batch.items()}
         zeros = {name: torch.zeros_like(value) for name, value in batch.items()}
-        return [("task batch", (batch,)), ("task batch, N=1", (first_row,)), ("all-zero batch", (zeros,))]
+        cases = [("task batch", (batch,)), ("task batch, N=1", (first_row,))]
+        if batch_size is not None:
+            rows = torch.arange(batch_size) % next(iter(batch.values())).shape[0]
+            cases.append((f"training batch, N={batch_size}", ({name: value[rows] for name, value in batch.items()},)))
+        return [*cases, ("all-zero batch", (zeros,))]
     generator = torch.Generator().manual_seed(seed)
     cases = []
-    for num_envs, obs_dim, act_dim in ((1, 3, 1), (8, 27, 8), (64, 13, 4)):
+    sizes = ((1, 3, 1), (8, 27, 8), (64, 13, 4)) + (((batch_size, 13, 4),) if batch_size is not None else ())
+    for num_envs, obs_dim, act_dim in sizes:
         observation = torch.randn(num_envs, obs_dim, generator=generator)
         action = torch.randn(num_envs, act_dim, generator=generator)
         cases.append((f"random N={num_envs}", ({"observation": observation, "action": action},)))
@@ -103,24 +114,64 @@ def _fresh(value: Any) -> Any:
     return {name: tensor.clone() for name, tensor in value.items()} if isinstance(value, dict) else value.clone()
 
 
+def output_contract(output: Any, expected_shape: tuple[int, ...]) -> tuple[torch.Tensor | None, str | None]:
+    """The one output contract, applied alike by the check and in training: ``(float32 tensor, None)`` or
+    ``(None, why)``.
+
+    The output may be a tensor, a numpy array or a list of numbers (converted with ``torch.as_tensor``); its
+    shape must be ``expected_shape`` (``[N, 1]`` for an expected ``[N]`` is squeezed); every value finite.
+
+    Example:
+        >>> import numpy as np
+        >>> output_contract(np.ones(3), (3,))[0].dtype, output_contract(torch.ones(3, 1), (3,))[0].shape
+        (torch.float32, torch.Size([3]))
+        >>> output_contract(torch.ones(2), (3,))
+        (None, 'output shape (2,), expected (3,)')
+    """
+    try:
+        tensor = torch.as_tensor(output, dtype=torch.float32)
+    except Exception as error:  # noqa: BLE001 (any conversion failure is a verdict)
+        message = " ".join(str(error).split())[:200]
+        return None, f"output is not a tensor of numbers ({type(output).__name__}: {type(error).__name__}: {message})"
+    if len(expected_shape) == 1 and tuple(tensor.shape) == (*expected_shape, 1):
+        tensor = tensor.squeeze(-1)
+    if tuple(tensor.shape) != tuple(expected_shape):
+        return None, f"output shape {tuple(tensor.shape)}, expected {tuple(expected_shape)}"
+    if not torch.isfinite(tensor).all():
+        bad = int((~torch.isfinite(tensor)).sum())
+        return None, f"output is not finite ({bad} NaN or inf value(s))"
+    return tensor.contiguous(), None
+
+
 def check_output(output: Any, expected_shape: tuple[int, ...]) -> str | None:
-    """Why ``output`` is not a finite float tensor of ``expected_shape`` (``[K, 1]`` also passes), or None.
+    """Why ``output`` breaks :func:`output_contract`, or None.
 
     Example:
         >>> check_output(torch.ones(3), (3,)) is None, check_output(torch.ones(2), (3,))
         (True, 'output shape (2,), expected (3,)')
     """
-    try:
-        tensor = torch.as_tensor(output, dtype=torch.float32)
-    except Exception as error:  # noqa: BLE001 (any conversion failure is a verdict)
-        return f"output is not a tensor of numbers ({type(error).__name__}: {error})"
-    if tuple(tensor.shape) != expected_shape and not (
-        len(expected_shape) == 1 and tuple(tensor.shape) == (*expected_shape, 1)
-    ):
-        return f"output shape {tuple(tensor.shape)}, expected {expected_shape}"
-    if not torch.isfinite(tensor).all():
-        return "output is not finite (NaN or inf)"
-    return None
+    return output_contract(output, expected_shape)[1]
+
+
+def warm_up_lazy_imports() -> None:
+    """Calls what numpy and torch import on first use, so it is imported before the audit hook is installed.
+
+    ``np.median``, ``np.percentile``, ``np.quantile`` and ``np.unique`` import ``numpy.ma`` lazily, which
+    lists a directory (``os.listdir``, refused by the hook): ordinary statistics would be refused.
+
+    Example:
+        >>> warm_up_lazy_imports()
+    """
+    values = numpy.arange(5.0)
+    numpy.median(values), numpy.percentile(values, 50), numpy.quantile(values, 0.5), numpy.unique(values)
+    (
+        numpy.nanmedian(values),
+        numpy.nanpercentile(values, 50),
+        numpy.nanquantile(values, 0.5),
+        numpy.ma.masked_invalid(values),
+    )
+    tensor = torch.arange(5.0)
+    torch.median(tensor), torch.quantile(tensor, 0.5), torch.unique(tensor), torch.tensor([1.0]).numpy()
 
 
 def _is_memory_error(error: BaseException) -> bool:
@@ -134,19 +185,20 @@ def validate(
     inputs: Mapping[str, torch.Tensor] | None = None,
     num_components: int | Sequence[int] | None = None,
     loader: Callable[[str], Mapping[str, Callable]] | None = None,
+    batch_size: int | None = None,
 ) -> dict:
     """Loads ``source`` and calls its functions on every case; returns the JSON-able report.
 
     ``{"ok": bool, "reasons": [one line per failing function], "functions": [names checked]}``. Rules
     are the functions with four arguments, checked at ``num_components``; ``aux`` checks
-    ``compute_aux_reward`` on ``inputs``. One reason per function: its first failing case. ``loader``
+    ``compute_aux_reward`` on ``inputs`` (and at the training ``batch_size``). One reason per function: its first failing case. ``loader``
     replaces :func:`~torchrl_ahrs.sandbox.runtime.load_functions` (tests of the isolation alone).
 
     Example:
         >>> validate("def rule(m, v, h, w):\\n    return m / (m.shape[0] - 1)\\n", "rule", num_components=11)["ok"]
         True
         >>> validate("def rule(m, v, h, w):\\n    return m / (m.shape[0] - 1)\\n", "rule")["reasons"]
-        ["rule: output is not finite (NaN or inf) on input 'random K=1'"]
+        ["rule: output is not finite (1 NaN or inf value(s)) on input 'random K=1'"]
     """
     try:
         functions = (loader or load_functions)(source)
@@ -165,7 +217,7 @@ def validate(
         targets = {name: fn for name, fn in functions.items() if name == AUX_FUNCTION}
         if not targets:
             reasons.append(f"no function named {AUX_FUNCTION}(obs)")
-        cases = aux_cases(inputs)
+        cases = aux_cases(inputs, batch_size=batch_size)
     else:
         return {"ok": False, "reasons": [f"unknown kind {kind!r} (expected one of {KINDS})"], "functions": []}
     for name, fn in targets.items():

@@ -12,7 +12,12 @@ The rules are deliberately coarse, so they do not need a list of every safe torc
   ``numpy.lib``, ``numpy.ctypeslib``... are modules outside it and are refused);
 * an attribute name that reads or writes files, loads code, or changes process-wide state is refused
   on any object (:data:`REFUSED_NAME_PARTS`: ``load``, ``save``, ``file``, ``memmap``, ``seed``,
-  ``set_``...), because torch and numpy expose such functions both as module functions and methods.
+  ``set_``, ``register``, ``guard``, ``dispatch``...), because torch and numpy expose such functions both
+  as module functions and methods;
+* nothing may be read from a module outside the set, however it was reached (a call that returns a
+  module, such as ``torch.get_device_module``, hands out ``torch.cuda``);
+* pybind11 classes (TorchScript internals, ``torch.Future``, dispatch keys and guards, file readers and
+  writers) are refused: numeric code never needs them, and they act on the whole process.
 """
 
 from __future__ import annotations
@@ -58,7 +63,10 @@ IMPORT_ROOTS: frozenset[str] = frozenset(name.split(".")[0] for name in ALLOWED_
 # np.fromfile, ndarray.tofile, torch.ops.load_library, np.memmap, np.DataSource), process-wide state
 # (torch.manual_seed, torch.set_num_threads, np.seterr, torch.use_deterministic_algorithms), code
 # generation (torch.compile), raw memory (ndarray.ctypes), shared-memory files (Tensor.share_memory_),
-# module imports by name (torch.ops.import_module) and str.format (reaches dunder attributes).
+# module imports by name (torch.ops.import_module), str.format (reaches dunder attributes), callables that
+# return modules (torch.get_device_module("cuda") is torch.cuda, whose allocator loads shared libraries),
+# guard and dispatch objects that change the whole process (torch.ExcludeDispatchKeyGuard kept alive turns
+# autograd off), and process-wide registries and buffers (torch.distributions.register_kl, np.setbufsize).
 REFUSED_NAME_PARTS: tuple[str, ...] = (
     "load",
     "save",
@@ -81,6 +89,11 @@ REFUSED_NAME_PARTS: tuple[str, ...] = (
     "storage",
     "share_memory",
     "import",
+    "device_module",
+    "guard",
+    "dispatch",
+    "register",
+    "setbufsize",
 )
 _REFUSED_NAMES = re.compile("|".join(re.escape(part) for part in REFUSED_NAME_PARTS), re.IGNORECASE)
 
@@ -107,14 +120,20 @@ def attribute_refusal(obj: Any, name: str) -> str | None:
         True
         >>> attribute_refusal(torch, "os")
         "attribute 'os' of torch is a module outside the sandbox"
+        >>> attribute_refusal(torch, "Future")
+        "attribute 'Future' of torch is a pybind11 class (TorchScript, dispatch or guard internals act process-wide)"
     """
     refusal = name_refusal(name)
     if refusal is not None:
         return refusal
+    if isinstance(obj, types.ModuleType) and obj.__name__ not in ALLOWED_MODULES:
+        return f"attribute {name!r} of module {obj.__name__}: the module is outside the sandbox (returned by a call?)"
     value = getattr(obj, name, None)
+    owner = obj.__name__ if isinstance(obj, types.ModuleType) else type(obj).__name__
     if isinstance(value, types.ModuleType) and value.__name__ not in ALLOWED_MODULES:
-        owner = obj.__name__ if isinstance(obj, types.ModuleType) else type(obj).__name__
         return f"attribute {name!r} of {owner} is a module outside the sandbox"
+    if isinstance(value, type) and "pybind11" in type(value).__name__:
+        return f"attribute {name!r} of {owner} is a pybind11 class (TorchScript, dispatch or guard internals act process-wide)"
     return None
 
 

@@ -177,6 +177,7 @@ def validate_source(
     memory_bytes: int = MEMORY_BYTES,
     wall_seconds: float = WALL_SECONDS,
     restricted: bool = True,
+    batch_size: int | None = None,
 ) -> Verdict:
     """Calls the functions of ``source`` in a limited child process (see :mod:`~torchrl_ahrs.sandbox.server`).
 
@@ -189,6 +190,7 @@ def validate_source(
         cpu_seconds, memory_bytes, wall_seconds: the child's limits.
         restricted: False executes without RestrictedPython, to test the isolation alone; never use it
             for code that is to be accepted.
+        batch_size: aux: also call at this N, the number of environments training steps at once.
 
     Example:
         >>> validate_source("def rule(m, v, h, w):\\n    return m * 2\\n", "rule", num_components=3).ok
@@ -206,6 +208,7 @@ def validate_source(
         "memory_bytes": int(memory_bytes),
         "wall_seconds": float(wall_seconds),
         "restricted": bool(restricted),
+        "batch_size": batch_size,
     }
     report = _run(request)
     return Verdict(report["ok"], report["reasons"], report.get("functions", []))
@@ -219,6 +222,7 @@ def validate_in_child(
     inputs_path: str | Path | None = None,
     *,
     num_components: int | Sequence[int] | None = None,
+    batch_size: int | None = None,
 ) -> Verdict:
     """:func:`validate_source` on a file; ``inputs_path``: a ``torch.save``'d dict of transitions.
 
@@ -237,6 +241,7 @@ def validate_in_child(
         inputs=inputs,
         cpu_seconds=cpu_seconds,
         memory_bytes=memory_bytes,
+        batch_size=batch_size,
     )
 
 

@@ -39,7 +39,7 @@ from typing import Any, BinaryIO
 
 import torch
 
-from torchrl_ahrs.sandbox.cases import CpuLimitExceeded, validate
+from torchrl_ahrs.sandbox.cases import CpuLimitExceeded, validate, warm_up_lazy_imports
 from torchrl_ahrs.sandbox.guards import SandboxRefusal
 from torchrl_ahrs.sandbox.protocol import read_message, write_message
 
@@ -130,8 +130,10 @@ def _on_cpu_limit(signum, frame):
     raise CpuLimitExceeded("CPU-time limit exceeded")
 
 
-def install_limits(cpu_seconds: int, memory_bytes: int) -> None:
-    """Lowers this process's limits (see the module docstring); only ever called in a forked child.
+def install_limits(cpu_seconds: int | None, memory_bytes: int) -> None:
+    """Lowers this process's limits (see the module docstring); only ever called in an isolated process.
+
+    ``cpu_seconds=None`` sets no ``RLIMIT_CPU`` (a serving process bounds each call with a timer instead).
 
     Example:
         >>> import subprocess, sys
@@ -140,9 +142,10 @@ def install_limits(cpu_seconds: int, memory_bytes: int) -> None:
         >>> subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout
         '(0, 0)\\n'
     """
-    used = resource.getrusage(resource.RUSAGE_SELF)
-    cpu_now = int(used.ru_utime + used.ru_stime) + 1
-    resource.setrlimit(resource.RLIMIT_CPU, (cpu_now + cpu_seconds, cpu_now + cpu_seconds + 1))
+    if cpu_seconds is not None:
+        used = resource.getrusage(resource.RUSAGE_SELF)
+        cpu_now = int(used.ru_utime + used.ru_stime) + 1
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu_now + cpu_seconds, cpu_now + cpu_seconds + 1))
     with open("/proc/self/statm") as statm:  # first field: total program size in pages
         virtual_now = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
     resource.setrlimit(resource.RLIMIT_AS, (virtual_now + memory_bytes, virtual_now + memory_bytes))
@@ -168,10 +171,18 @@ def _child(request: dict, result_fd: int) -> None:
     os.close(devnull)
     torch.set_num_threads(1)
     inputs = torch.load(io.BytesIO(request["inputs"]), weights_only=True) if request.get("inputs") else None
+    warm_up_lazy_imports()  # np.median's lazy numpy.ma import lists a directory: done before the audit hook
     install_limits(request["cpu_seconds"], request["memory_bytes"])
     sys.addaudithook(_audit_hook)
     loader = None if request.get("restricted", True) else _load_unrestricted
-    report = validate(request["source"], request["kind"], inputs, request.get("num_components"), loader=loader)
+    report = validate(
+        request["source"],
+        request["kind"],
+        inputs,
+        request.get("num_components"),
+        loader=loader,
+        batch_size=request.get("batch_size"),
+    )
     payload = json.dumps(report).encode()[:MAX_REPORT_BYTES]
     while payload:
         payload = payload[os.write(result_fd, payload) :]

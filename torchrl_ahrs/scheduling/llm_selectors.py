@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
+from torchrl_ahrs.common.text import ANSWER_CHARS, cap_text
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig
 from torchrl_ahrs.llm.prompts import correction_message, direct_weights_prompt, rule_selection_prompt
@@ -108,7 +109,7 @@ class _LLMSelectorBase(Selector):
         first_error = reply.parse_error
         retry = [
             *messages,
-            {"role": "assistant", "content": reply.text},
+            {"role": "assistant", "content": cap_text(reply.text, ANSWER_CHARS)},  # a 2 MB answer is not sent back
             correction_message(first_error, self.expected),
         ]
         second = self.client.complete(retry, purpose=f"{self.name}-correction", parser=self.parse, deadline=deadline)

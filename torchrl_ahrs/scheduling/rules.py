@@ -21,7 +21,8 @@ from pathlib import Path
 
 import torch
 
-from torchrl_ahrs.sandbox import check_file, load_functions
+from torchrl_ahrs.sandbox import check_file, load_functions, output_contract
+from torchrl_ahrs.sandbox.session import SandboxSession, isolated_functions
 from torchrl_ahrs.scheduling.mapping import WeightMapping, minshift_sum
 
 DEFAULT_REPOSITORY = Path(__file__).with_name("default_rules.py")
@@ -61,20 +62,17 @@ class Rule:
     fn: RuleFn
 
     def scores(self, mean_returns, var_returns, history, previous_weights) -> torch.Tensor:
-        """Raw scores ``[K]`` (float32), checked for shape and finiteness.
+        """Raw scores ``[K]`` (float32), checked by the sandbox's output contract (the check's own).
 
         Raises:
             ValueError: wrong shape or a non-finite score.
+            SandboxCallError: an isolated rule failed in its worker (the message names the file).
         """
-        raw = torch.as_tensor(self.fn(mean_returns, var_returns, history, previous_weights), dtype=torch.float32)
-        expected = mean_returns.shape
-        if raw.shape != expected and raw.numel() == expected.numel():
-            raw = raw.reshape(expected)  # e.g. [K, 1] from a rule that kept a trailing dim
-        if raw.shape != expected:
-            raise ValueError(f"rule {self.key!r} returned shape {tuple(raw.shape)}, expected {tuple(expected)}")
-        if not torch.isfinite(raw).all():
-            raise ValueError(f"rule {self.key!r} returned non-finite scores {raw.tolist()}")
-        return raw
+        raw = self.fn(mean_returns, var_returns, history, previous_weights)
+        scores, problem = output_contract(raw, tuple(mean_returns.shape))
+        if scores is None:
+            raise ValueError(f"rule {self.key!r}: {problem}")
+        return scores
 
     def weights(
         self, mean_returns, var_returns, history, previous_weights, base_weight: float = 0.5, mapping=None
@@ -163,9 +161,24 @@ def _parse_docstring(key: str, docstring: str | None) -> tuple[str, str, str]:
     return name, text or name, math_lines[0] if math_lines else ""
 
 
-def rules_from_source(source: str, filename: str = "<rules>") -> list[Rule]:
-    """Rules of a repository source text (static sandbox check + restricted execution)."""
-    functions = load_functions(source, filename)
+def rules_from_source(source: str, filename: str = "<rules>", isolated: bool = False) -> list[Rule]:
+    """Rules of a repository source text (static sandbox check + restricted execution).
+
+    ``isolated``: the rules run in a :class:`~torchrl_ahrs.sandbox.session.SandboxSession` (a key-free worker
+    with the check's limits) instead of in this process; the file's text is checked statically here first.
+
+    Example:
+        >>> (rule,) = rules_from_source("def twice(m, v, h, w):\\n    return m * 2\\n", isolated=True)
+        >>> rule.key, rule.fn(torch.ones(2), None, None, None).tolist()
+        ('twice', [2.0, 2.0])
+        >>> rule.fn.session.close()
+    """
+    functions: dict[str, Callable]
+    if isolated:
+        load_functions(source, filename)  # the static gate's reasons, here, before a worker starts
+        functions = dict(isolated_functions(SandboxSession(source, filename), "rule"))
+    else:
+        functions = load_functions(source, filename)
     rules: list[Rule] = []
     for key, fn in functions.items():
         if len(inspect.signature(fn).parameters) != RULE_ARITY:
@@ -178,7 +191,10 @@ def rules_from_source(source: str, filename: str = "<rules>") -> list[Rule]:
 
 
 def load_repository(
-    path: str | Path | None = None, validate: bool = False, num_components: int | None = None
+    path: str | Path | None = None,
+    validate: bool = False,
+    num_components: int | None = None,
+    isolated: bool | None = None,
 ) -> RuleRepository:
     """Loads a repository file (default: the shipped ``default_rules.py``).
 
@@ -190,6 +206,8 @@ def load_repository(
             checked when generated).
         num_components: the task's K, so validation calls the rules at the K they will serve
             (None: K = 1, 4 and 12).
+        isolated: call the rules in an isolated worker (:func:`rules_from_source`); None: every file but
+            the shipped repositories (hand-written, part of the package's reviewed code).
 
     Raises:
         ValueError: the sandbox refused the file (every reason is in the message).
@@ -197,10 +215,12 @@ def load_repository(
     if path is None or str(path) in SHIPPED_REPOSITORIES:
         path = SHIPPED_REPOSITORIES[str(path or "ahrs")]
     path = Path(path)
+    if isolated is None:
+        isolated = path.resolve() not in {shipped.resolve() for shipped in SHIPPED_REPOSITORIES.values()}
     if validate:
         verdict = check_file(path, "rule", num_components=num_components)
         if not verdict.ok:
             raise ValueError(f"sandbox refused {path}:\n" + "\n".join(verdict.reasons))
     source = path.read_text()
     provenance = ast.get_docstring(ast.parse(source)) or ""
-    return RuleRepository(rules_from_source(source, str(path)), path, provenance)
+    return RuleRepository(rules_from_source(source, str(path), isolated=isolated), path, provenance)

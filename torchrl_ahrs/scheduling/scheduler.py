@@ -27,7 +27,8 @@ import json
 import logging
 import math
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -35,6 +36,8 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.trainers import TrainerHookBase
 
+from torchrl_ahrs.common.background import in_daemon_thread
+from torchrl_ahrs.common.text import error_line, one_line
 from torchrl_ahrs.llm.client import FatalSelectorError
 from torchrl_ahrs.rewards.components import EPISODE_REWARD, TOTAL, finished_episode_returns
 from torchrl_ahrs.scheduling.mapping import WeightMapping
@@ -44,6 +47,7 @@ from torchrl_ahrs.scheduling.settings import ScheduleSettings, interval_for
 from torchrl_ahrs.scheduling.stats import ReturnStatistics, Summary
 
 log = logging.getLogger(__name__)
+CLOSE_WAIT_SECONDS = 5.0  # how long the end of a run waits for a decision still being made in the background
 
 
 class WeightedEstimator(Protocol):
@@ -146,7 +150,6 @@ class RuleScheduler(TrainerHookBase):
             raise ValueError(f"{what} must be {len(self.components)} finite numbers, got {initial.tolist()}")
         if not keep:
             self.estimator.set_weights(initial.float())
-        self._executor: ThreadPoolExecutor | None = None
         self._pending: tuple[Future, DecisionContext] | None = None
         if note:
             log.warning("RuleScheduler: %s", note)
@@ -257,9 +260,7 @@ class RuleScheduler(TrainerHookBase):
         if self.blocking:
             self._apply(self._run_selector(context), context)
         else:
-            if self._executor is None:
-                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rule-selector")
-            self._pending = (self._executor.submit(self._run_selector, context), context)
+            self._pending = (in_daemon_thread(self._run_selector, context, name="rule-selector"), context)
             self._record(None, "decision requested in the background; weights kept until it arrives", summary)
 
     def _run_selector(self, context: DecisionContext) -> Decision:
@@ -268,8 +269,9 @@ class RuleScheduler(TrainerHookBase):
         except FatalSelectorError:
             raise  # e.g. a replay miss: continuing would silently diverge from the recorded run
         except Exception as error:  # noqa: BLE001 (a selector failure must not stop training)
-            log.exception("selector %s failed", self.selector.name)
-            return Decision(self.selector.name, note=f"selector failed: {type(error).__name__}: {error}")
+            # one capped line; the traceback only when debugging (a huge message would fill every log)
+            log.warning("selector %s failed: %s", self.selector.name, error_line(error), exc_info=log.isEnabledFor(10))
+            return Decision(self.selector.name, note=f"selector failed: {error_line(error)}")
 
     def _collect_pending(self) -> None:
         if self._pending is not None and self._pending[0].done():
@@ -290,7 +292,8 @@ class RuleScheduler(TrainerHookBase):
                 weights = self.mapping(rule.scores(context.mean, context.var, context.history, self.weights))
                 rule_id = rule.id
         except Exception as error:  # noqa: BLE001 (a rule failure must not stop training)
-            self._record(decision, f"{decision.note} rule failed ({type(error).__name__}: {error}); weights kept")
+            # one capped line, whatever the rule raised (a 1 MB message would fill every log at every decision)
+            self._record(decision, f"{one_line(decision.note)} rule failed ({error_line(error)}); weights kept")
             return
         if weights.shape != self.weights.shape or not torch.isfinite(weights).all():
             self._record(decision, f"invalid weights {weights.tolist()}; weights kept")
@@ -355,12 +358,18 @@ class RuleScheduler(TrainerHookBase):
         self.statistics.load_state_dict(state_dict["statistics"])
         self.selector.load_state_dict(state_dict["selector"])
 
-    def close(self) -> None:
-        """Waits for a pending background decision (applies it) and releases the selector."""
-        if self._executor is not None:
-            self._executor.shutdown(wait=True)
+    def close(self, wait_seconds: float = CLOSE_WAIT_SECONDS) -> None:
+        """Waits up to ``wait_seconds`` for a pending background decision (applies it), else drops it and says
+        so; releases the selector. The selector's thread is a daemon: a silent server cannot hold up the exit."""
+        if self._pending is not None:
+            try:
+                self._pending[0].result(timeout=wait_seconds)
+            except FutureTimeout:
+                self._pending = None
+                self._record(None, f"decision still pending after {wait_seconds:g} s at shutdown; dropped")
+            except Exception:  # noqa: BLE001 (_collect_pending re-raises a fatal selector error)
+                pass
             self._collect_pending()
-            self._executor = None
         self.selector.close()
 
 

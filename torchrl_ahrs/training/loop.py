@@ -31,6 +31,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
+from torchrl_ahrs.rewards.auxiliary import AuxiliaryRewardError
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
 from torchrl_ahrs.training.models import RunningNorm
 
@@ -205,9 +206,14 @@ def learn(run: TrainingRun) -> dict[str, float]:
                         for group in optimizer.param_groups:
                             group["lr"] = lr
                         losses.set("lr", torch.tensor(lr))
-                    # step: the sum of the loss_* terms, the gradient's global norm clipped to max_grad_norm
-                    sum(value for key, value in losses.items() if key.startswith("loss_")).backward()
-                    losses.set("grad_norm", nn.utils.clip_grad_norm_(params, max_norm).detach())
+                    # step: the sum of the loss_* terms, the gradient's global norm clipped to max_grad_norm; a
+                    # non-finite loss or gradient stops the run before the step could write NaN into the networks
+                    total = sum(value for key, value in losses.items() if key.startswith("loss_"))
+                    check_finite_update(total, losses, minibatch, components, progress.optim_steps)
+                    total.backward()
+                    grad_norm = nn.utils.clip_grad_norm_(params, max_norm).detach()
+                    check_finite_update(grad_norm, losses, minibatch, components, progress.optim_steps, "gradient")
+                    losses.set("grad_norm", grad_norm)
                     optimizer.step()
                     optimizer.zero_grad()
                     losses = losses.detach()
@@ -254,9 +260,57 @@ def learn(run: TrainingRun) -> dict[str, float]:
             if frames >= settings.total_frames:
                 break
         run.scheduler.close()  # waits for (and applies) a decision still being made in the background
+    except AuxiliaryRewardError:
+        # the file's failure ends the run; what was learnt so far is kept: the state the failed iteration began
+        # with (a resumed run, after the file is fixed, starts there)
+        save = getattr(run.checkpoint, "save_after_failure", None)
+        if save is not None:
+            save()
+        raise
     finally:
         run.collector.shutdown()
     return latest
+
+
+def check_finite_update(
+    value: torch.Tensor,
+    losses: TensorDictBase,
+    minibatch: TensorDictBase,
+    components: Sequence[str],
+    optim_step: int,
+    what: str = "loss",
+) -> None:
+    """Raises ``FloatingPointError`` (one line naming the loss terms and the reward components to blame) when
+    ``value`` (the summed loss, or the gradient's global norm) is not finite.
+
+    A finite but huge reward (an auxiliary reward of 1e30) passes every check of the batch and still turns the
+    critic's loss into NaN; the line names each component whose value targets are non-finite or beyond 1e15.
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> losses = TensorDict({"loss_critic": torch.tensor(float("nan")), "loss_objective": torch.tensor(0.1)})
+        >>> minibatch = TensorDict({"value_target": torch.tensor([[1.0, 1e30]])}, [1])
+        >>> check_finite_update(losses["loss_critic"], losses, minibatch, ["pos", "aux"], 7)
+        Traceback (most recent call last):
+        ...
+        FloatingPointError: non-finite loss at optimiser step 7 in loss_critic (reward component 'aux': value targets up to 1e+30); update not applied, training stopped
+    """
+    if bool(torch.isfinite(value).all()):
+        return
+    terms = [key for key, term in losses.items() if key.startswith("loss_") and not bool(torch.isfinite(term).all())]
+    blamed = []
+    targets = minibatch.get("value_target", None)
+    if targets is not None and targets.shape[-1] == len(components):
+        magnitude = targets.detach().abs().reshape(-1, len(components)).nan_to_num(nan=float("inf")).amax(0)  # [K]
+        blamed = [
+            f"{name!r}: value targets up to {float(m):.0e}" for name, m in zip(components, magnitude, strict=True)
+        ]
+        blamed = [text for text, m in zip(blamed, magnitude, strict=True) if not m < 1e15]
+    where = f" in {', '.join(terms)}" if terms else ""
+    why = f" (reward component {'; '.join(blamed)})" if blamed else ""
+    raise FloatingPointError(
+        f"non-finite {what} at optimiser step {optim_step}{where}{why}; update not applied, training stopped"
+    )
 
 
 def adaptive_kl_lr(
