@@ -110,11 +110,11 @@ def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys
     """point_reach with the bandit deciding after every iteration: each table row's weight and share are the CSV's
     weight/<c> and share/<c> of that iteration, its "next" column the following row's weight; the run ends with one
     ``done:`` line; no FutureWarning comes from our calls into TorchRL."""
-    import csv
     import warnings
 
     from conftest import make_cfg
 
+    from torchrl_ahrs.app.runs import read_scalar
     from torchrl_ahrs.train import train
 
     cfg = make_cfg(
@@ -139,8 +139,8 @@ def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys
     components = ["distance", "arrival", "ctrl"]
 
     def logged(name):
-        with open(tmp_path / "metrics" / "scalars" / f"{name}.csv") as handle:
-            return {int(float(row[0])): float(row[1]) for row in csv.reader(handle) if row}
+        steps, values = read_scalar(tmp_path / "metrics" / "scalars" / f"{name}.csv")
+        return {int(step): float(value) for step, value in zip(steps, values, strict=True)}
 
     tables = []
     for start in starts:
