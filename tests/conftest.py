@@ -1,7 +1,6 @@
 """Shared fixtures: a scripted local OpenAI-compatible server and a loopback-only network guard; and
 ``make_cfg``, the one way tests compose the packaged Hydra config (``from conftest import make_cfg``)."""
 
-import logging
 import socket
 
 import pytest
@@ -14,22 +13,6 @@ def make_cfg(*overrides: str, hydra: bool = False):
     ``hydra`` section (launcher, callbacks, run dir)."""
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
-
-
-@pytest.fixture(autouse=True)
-def _drop_log_handlers_on_closed_streams():
-    """After each test, removes logging handlers whose stream is closed. A Hydra run inside a test process
-    (``hydra_main`` called in-process) binds its console handler to that test's captured stdout; once pytest
-    closes the capture, the next record through that handler raises "I/O operation on closed file" and a later
-    test's stderr (or pytest's own) breaks. A command-line run is one process and never sees this."""
-    yield
-    loggers = [logging.getLogger()] + [
-        entry for entry in logging.Logger.manager.loggerDict.values() if isinstance(entry, logging.Logger)
-    ]
-    for logger in loggers:
-        for handler in list(logger.handlers):
-            if getattr(getattr(handler, "stream", None), "closed", False):
-                logger.removeHandler(handler)
 
 
 @pytest.fixture
