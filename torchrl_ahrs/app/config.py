@@ -68,7 +68,7 @@ def num_minibatches(cfg: DictConfig) -> int:
 
 def validate_config(cfg: DictConfig) -> None:
     """Raises :class:`ConfigError` with one clear line for the first impossible value."""
-    refuse_renamed(_dotted_keys(OmegaConf.to_container(cfg, resolve=False)))
+    refuse_renamed(dotted_keys(OmegaConf.to_container(cfg, resolve=False)))
     if cfg.task.name not in available_tasks():
         raise ConfigError(f"unknown task {cfg.task.name!r}; available tasks: {', '.join(available_tasks())}")
     trainer = cfg.trainer
@@ -176,13 +176,19 @@ def check_device(device: Any, collector: str = "sync") -> None:
         raise ConfigError(f"trainer.device={device} needs trainer.collector=sync (got {collector!r})")
 
 
-def _dotted_keys(container: Any, prefix: str = "") -> list[str]:
+def dotted_keys(container: Any, prefix: str = "") -> list[str]:
+    """Every key of a nested dict as a dotted path, parents before children.
+
+    Example:
+        >>> dotted_keys({"a": {"b": 1}, "c": 2})
+        ['a', 'a.b', 'c']
+    """
     if not isinstance(container, dict):
         return []
     keys = []
     for key, value in container.items():
         dotted = f"{prefix}{key}"
-        keys += [dotted, *_dotted_keys(value, dotted + ".")]
+        keys += [dotted, *dotted_keys(value, dotted + ".")]
     return keys
 
 

@@ -32,6 +32,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from torchrl_ahrs.app.config import dotted_keys
 from torchrl_ahrs.app.errors import ConfigError
 
 __all__ = [
@@ -68,7 +69,7 @@ def shipped_keys(config_package: str = "torchrl_ahrs.conf") -> tuple[set[str], s
         (True, False, True)
     """
     root = importlib.resources.files(config_package)
-    keys = set(_dotted_keys(_load_options(root.joinpath("config.yaml"))))
+    keys = set(dotted_keys(_load_options(root.joinpath("config.yaml"))))
     groups = set()
     for group in root.iterdir():
         if not group.is_dir() or group.name.startswith(("_", ".")) or group.name == "hydra":
@@ -78,7 +79,7 @@ def shipped_keys(config_package: str = "torchrl_ahrs.conf") -> tuple[set[str], s
             if option.name.endswith(".yaml"):
                 text = option.read_text()
                 prefix = "" if "@package _global_" in text.split("\n", 1)[0] else f"{group.name}."
-                keys.update(_dotted_keys(_load_options(option), prefix))
+                keys.update(dotted_keys(_load_options(option), prefix))
     return keys, groups
 
 
@@ -88,16 +89,6 @@ def _load_options(path: Any) -> dict[str, Any]:
     container.pop("defaults", None)
     container.pop("hydra", None)  # Hydra's own tree: Hydra checks it
     return {str(key): value for key, value in container.items()}
-
-
-def _dotted_keys(container: Any, prefix: str = "") -> list[str]:
-    if not isinstance(container, dict):
-        return []
-    keys = []
-    for key, value in container.items():
-        dotted = f"{prefix}{key}"
-        keys += [dotted, *_dotted_keys(value, dotted + ".")]
-    return keys
 
 
 def override_key(argument: str) -> tuple[str, str] | None:
