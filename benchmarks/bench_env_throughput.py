@@ -81,7 +81,7 @@ def main() -> None:
     print(f"parity Ant-v5  ours (BatchedMujocoEnv) {ours[0]:9.0f} steps/s  {ours[1]:6.1f} CPU us/step")
     print(f"parity Ant-v5  EnvPool 1.2.5           {pool[0]:9.0f} steps/s  {pool[1]:6.1f} CPU us/step")
     print(f"ratio ours / EnvPool                   {ours[0] / pool[0]:9.2f}x  (CPU per step: {ours[1] / pool[1]:.2f}x)")
-    from torchrl_ahrs.app.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_config
     from torchrl_ahrs.envs.registry import _BUILDERS, get_builder
 
     for task in args.tasks:

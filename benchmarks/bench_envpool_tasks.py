@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torchrl.collectors import Collector
 
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.registry import make_env
 
 TASKS = [

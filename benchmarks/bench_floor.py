@@ -8,7 +8,7 @@ Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method
 included; extra Hydra overrides follow the flags), then measures in this one process, with the run's torch
 thread count and per collected batch of N envs x T steps:
 
-* ``end to end``: :func:`torchrl_ahrs.app.iteration.train` itself, timed between batch deliveries after the
+* ``end to end``: :func:`torchrl_ahrs.app.train.iteration.train` itself, timed between batch deliveries after the
   warm-up batches (``bench_pipeline.timed_train``): collection, advantages, epochs, hooks, logging;
 * ``physics``: the run's environments (its reward components and transforms) stepped T times with uniformly
   random actions, partial resets included;
@@ -36,8 +36,8 @@ from hydra import compose, initialize_config_module
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_ahrs.app.build import build_collector, build_estimator_and_loss, build_networks, env_factory
-from torchrl_ahrs.app.config import num_minibatches
+from torchrl_ahrs.app.shared.config import num_minibatches
+from torchrl_ahrs.app.train.build import build_collector, build_estimator_and_loss, build_networks, env_factory
 from torchrl_ahrs.training.loop import MINIBATCH_KEYS
 
 

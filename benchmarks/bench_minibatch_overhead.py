@@ -22,7 +22,7 @@ import time
 import torch
 from torchrl.collectors import Collector
 
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic

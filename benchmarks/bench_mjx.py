@@ -4,7 +4,7 @@ For each N and backend (``task.backend=cpu`` / ``mjx``) on whatever JAX device i
 
 * env steps/s: ``steps`` batched steps under uniform random actions with TorchRL partial resets, after
   ``warmup`` steps (the first MJX step at a new N carries the XLA compile, reported apart as ``compile s``);
-* training frames/s (``--train-batches`` > 0): ``torchrl_ahrs.app.iteration.train`` (PPO, the task's reward
+* training frames/s (``--train-batches`` > 0): ``torchrl_ahrs.app.train.iteration.train`` (PPO, the task's reward
   components) with frames_per_batch = N × ``rollout_steps``, timed over the batches after the first.
 
 ``--device`` is ``trainer.device`` (default: the simulation's, so MJX on a GPU keeps env and learner there):
@@ -28,7 +28,7 @@ from bench_env_throughput import time_torchrl_env
 from bench_pipeline import TimedCollector, rates
 from hydra import compose, initialize_config_module
 
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.registry import make_env, simulation_device
 
 
@@ -49,7 +49,7 @@ def env_rate(
 def train_rate(task: str, backend: str, num_envs: int, rollout_steps: int, batches: int, device: str | None) -> float:
     """Training frames/s of the whole PPO iteration (collect + GAE + update), batches after the first, with
     ``trainer.device=device`` (None: the simulation's device)."""
-    import torchrl_ahrs.app.iteration as training
+    import torchrl_ahrs.app.train.iteration as training
 
     timed: list[TimedCollector] = []
     build_collector = training.build_collector

@@ -4,7 +4,7 @@ Both train PPO on the MuJoCo Ant-v5 task for the same number of frames with the 
 (N envs x T steps per batch, E epochs, M minibatches), the same network widths, the same seed and
 the same thread count:
 
-- ``ours``: :func:`torchrl_ahrs.app.iteration.train` with ``task=ant_v5 method=<ppo|hdppo>`` (EnvPool's Ant-v5
+- ``ours``: :func:`torchrl_ahrs.app.train.iteration.train` with ``task=ant_v5 method=<ppo|hdppo>`` (EnvPool's Ant-v5
   behind our batched env, reward components, K-head critic, WeightedMultiGAE, the loop of training/loop.py,
   CSV + TensorBoard logging), exactly as ``python -m torchrl_ahrs.train`` runs it.
 - ``reference``: the pipeline TorchRL's ``sota-implementations/ppo`` builds for MuJoCo, written here
@@ -119,7 +119,7 @@ def rates(stamps: list[tuple[float, float]], frames_per_batch: int, warmup: int)
 
 
 def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[float, float]:
-    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.app.iteration.train`` on task=ant_v5 after ``args.warmup`` batches."""
+    """(frames/s, CPU ms/frame) of ``torchrl_ahrs.app.train.iteration.train`` on task=ant_v5 after ``args.warmup`` batches."""
     overrides = [
         "task=ant_v5",
         f"method={method}",
@@ -140,12 +140,12 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
 
 
 def timed_train(cfg) -> list[tuple[float, float]]:
-    """``(wall, cpu)`` at each batch :func:`torchrl_ahrs.app.iteration.train` collects on ``cfg`` (in a scratch
+    """``(wall, cpu)`` at each batch :func:`torchrl_ahrs.app.train.iteration.train` collects on ``cfg`` (in a scratch
     run directory), but the last: its collection carries the collector's teardown.
 
     The only instrumentation is a :class:`TimedCollector` around the collector ``train`` builds.
     """
-    import torchrl_ahrs.app.iteration as training
+    import torchrl_ahrs.app.train.iteration as training
 
     timed: list[TimedCollector] = []
     build_collector = training.build_collector

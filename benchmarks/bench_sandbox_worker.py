@@ -29,8 +29,8 @@ import torch
 from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.app.auxiliary import collect_aux_inputs
-from torchrl_ahrs.app.iteration import train
+from torchrl_ahrs.app.shared.auxiliary import collect_aux_inputs
+from torchrl_ahrs.app.train.iteration import train
 from torchrl_ahrs.rewards.auxiliary import load_aux_function, shipped_aux_path
 
 

@@ -155,7 +155,7 @@ def evaluate_policy(task: str, policy: Policy, episodes: int = EVAL_EPISODES, se
     """``policy`` on our ``task`` env as ``python -m torchrl_ahrs.evaluate`` runs ours: ``episodes`` envs seeded
     ``seed``, each one's first episode, under ``ExplorationType.DETERMINISTIC``; every task component and
     ``total`` reported, with the task's step metrics (Cassie's velocity errors). Returns the JSON summary."""
-    from torchrl_ahrs.app.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_config
     from torchrl_ahrs.envs.registry import make_env
     from torchrl_ahrs.evaluation.episodes import run_episodes, summarize
     from torchrl_ahrs.evaluation.task_metrics import episode_metrics, step_probe
@@ -259,7 +259,7 @@ def train_rsl_rl(task: str, seed: int, budget: Budget, curve: CurveWriter) -> tu
     from rsl_rl_adapter import RslRlVecEnv, StopTraining
     from tensordict import TensorDict
 
-    from torchrl_ahrs.app.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_config
     from torchrl_ahrs.envs.registry import make_env
 
     torch.manual_seed(seed)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrl_ahrs.app.runs import load_run
+from torchrl_ahrs.app.train.runs import load_run
 from torchrl_ahrs.reporting.stats import movement_and_noise, normalised_auc
 
 

@@ -44,8 +44,15 @@ def layer(module: str) -> int:
 
 
 def subpackage(module: str) -> str:
+    """A library subpackage (``torchrl_ahrs.value``), an application room (``torchrl_ahrs.app.train``) or an
+    entry point."""
     parts = module.split(".")
-    return module if layer(module) == 2 else ".".join(parts[:2])
+    if layer(module) == 2:
+        return module
+    return ".".join(parts[:3]) if parts[1:2] == ["app"] and len(parts) > 2 else ".".join(parts[:2])
+
+
+SHARED_ROOM, BASE_ROOM = "torchrl_ahrs.app.shared", "torchrl_ahrs.app.train"
 
 
 def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
@@ -95,6 +102,26 @@ def test_imports_only_go_down(module):
     assert not upward, f"{module} (layer {layer(module)}) imports the layer above: {upward}"
 
 
+@pytest.mark.parametrize("room", sorted({subpackage(module) for module in MODULES if layer(module) == 1}))
+def test_a_command_room_imports_only_shared_and_train(room):
+    """Each command has its room under ``app/``; a room imports what the commands share (``app.shared``) and,
+    to read or start what ``train`` writes, ``app.train``; never another room, and ``shared`` no room."""
+    allowed = {room, SHARED_ROOM} | ({BASE_ROOM} if room != SHARED_ROOM else set())
+    imported = {
+        subpackage(target)
+        for module in MODULES
+        if subpackage(module) == room
+        for target in GRAPH[module]
+        if layer(target) == 1
+    }
+    assert imported <= allowed, f"{room} imports the rooms {sorted(imported - allowed)}"
+
+
+def test_every_app_module_is_in_a_room():
+    loose = sorted(m for m in MODULES if m.startswith("torchrl_ahrs.app.") and subpackage(m).count(".") < 2)
+    assert loose == [], f"modules in app/ outside a command room or app/shared: {loose}"
+
+
 def test_no_module_is_oversized():
     sizes = {name: len(path.read_text().splitlines()) for name, path in MODULES.items()}
     assert {name: size for name, size in sizes.items() if size > MAX_LINES} == {}
@@ -132,7 +159,7 @@ LIBRARY = sorted(module for module in MODULES if layer(module) == 0)
 @pytest.mark.parametrize("module", LIBRARY)
 def test_the_library_never_reads_config(module):
     """Only the application layer (``app/``) and the entry points read the Hydra tree; the library takes
-    typed settings (e.g. ``scheduling/settings.py``), translated in ``app/settings.py``."""
+    typed settings (e.g. ``scheduling/settings.py``), translated in ``app/shared/settings.py``."""
     assert config_imports(MODULES[module]) == [], f"{module} imports hydra/omegaconf"
 
 
@@ -143,6 +170,9 @@ def test_the_config_import_finder_finds_imports(tmp_path):
         "    importlib.import_module('omegaconf.dictconfig')\nfrom .omegaconf import x\n"
     )
     assert config_imports(source) == ["2: omegaconf", "4: hydra.utils", "5: omegaconf.dictconfig"]
-    assert config_imports(MODULES["torchrl_ahrs.app.settings"])  # the translation reads config
+    assert config_imports(MODULES["torchrl_ahrs.app.shared.settings"])  # the translation reads config
     assert "torchrl_ahrs.scheduling" in LIBRARY and "torchrl_ahrs.envs.registry" in LIBRARY
     assert not any(module.startswith("torchrl_ahrs.app") for module in LIBRARY)
+    assert subpackage("torchrl_ahrs.app.train.build") == BASE_ROOM and subpackage("torchrl_ahrs.value.critic") == (
+        "torchrl_ahrs.value"
+    )

@@ -13,10 +13,10 @@ from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.app.auxiliary import collect_aux_inputs, validate_aux_file
-from torchrl_ahrs.app.config import ConfigError, resolve_components, validate_config
-from torchrl_ahrs.app.runs import read_scalar as read_scalar_file
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.auxiliary import collect_aux_inputs, validate_aux_file
+from torchrl_ahrs.app.shared.config import ConfigError, resolve_components, validate_config
+from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.train.runs import read_scalar as read_scalar_file
 from torchrl_ahrs.envs.registry import available_tasks, make_env
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,
@@ -358,7 +358,7 @@ def _generator_cfg(server, attempts=3):
 
 @pytest.mark.slow
 def test_generator_feeds_refusals_back_and_saves_with_provenance(llm_server, loopback_only, tmp_path, monkeypatch):
-    from torchrl_ahrs.app.generate_aux import generate
+    from torchrl_ahrs.app.generate.aux import generate
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
     llm_server.script = [("ok", HOSTILE_ANSWER), ("ok", NAN_ANSWER), ("ok", GOOD_ANSWER)]
@@ -376,7 +376,7 @@ def test_generator_feeds_refusals_back_and_saves_with_provenance(llm_server, loo
 
 
 def test_generator_gives_up_after_the_configured_attempts(llm_server, loopback_only, tmp_path, monkeypatch):
-    from torchrl_ahrs.app.generate_aux import generate
+    from torchrl_ahrs.app.generate.aux import generate
 
     monkeypatch.setenv("TEST_LLM_KEY", "sk-test")
     llm_server.script = [("ok", HOSTILE_ANSWER)]
@@ -419,7 +419,7 @@ SMALLER_ANSWER = GOOD_ANSWER.replace("0.1 * (", "0.01 * (")
 def test_generator_trains_candidates_feeds_statistics_back_and_keeps_every_candidate(
     llm_server, loopback_only, tmp_path, monkeypatch
 ):
-    from torchrl_ahrs.app.runs import read_scalar as read_csv
+    from torchrl_ahrs.app.train.runs import read_scalar as read_csv
     from torchrl_ahrs.generate_aux import generate
     from torchrl_ahrs.reporting.stats import final_return
 

@@ -10,8 +10,8 @@ import torch
 from hydra import compose, initialize_config_module
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.app.runs import read_scalar
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.shadow_hand_bottle_cap import (
     ShadowHandBottleCapEnv,

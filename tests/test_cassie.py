@@ -12,7 +12,7 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.common import legged_rewards as lr
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.cassie import make_cassie

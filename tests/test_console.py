@@ -114,7 +114,7 @@ def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys
 
     from conftest import make_cfg
 
-    from torchrl_ahrs.app.runs import read_scalar
+    from torchrl_ahrs.app.train.runs import read_scalar
     from torchrl_ahrs.train import train
 
     cfg = make_cfg(

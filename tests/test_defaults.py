@@ -8,7 +8,7 @@ import torch
 from conftest import make_cfg
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.app.settings import scheduler_settings
+from torchrl_ahrs.app.shared.settings import scheduler_settings
 from torchrl_ahrs.llm.client import LLMConfig
 from torchrl_ahrs.scheduling import (
     DEFAULTS,

@@ -11,10 +11,10 @@ import torch
 from conftest import make_cfg
 from test_resume import differences
 
-from torchrl_ahrs.app.build import RunDevices, build_networks, env_factory, resolve_devices
-from torchrl_ahrs.app.config import ConfigError
-from torchrl_ahrs.app.iteration import train
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.shared.config import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.build import RunDevices, build_networks, env_factory, resolve_devices
+from torchrl_ahrs.app.train.iteration import train
 
 SHORT_RUN = [
     "task=point_reach",
@@ -69,7 +69,7 @@ def test_mjx_environments_follow_the_learner(monkeypatch):
     import torchrl_ahrs.envs.registry as registry
 
     monkeypatch.setattr(registry, "simulation_device", lambda task_cfg: torch.device("cuda:0"))
-    monkeypatch.setattr("torchrl_ahrs.app.build.simulation_device", registry.simulation_device)
+    monkeypatch.setattr("torchrl_ahrs.app.train.build.simulation_device", registry.simulation_device)
     cuda = torch.device("cuda:0")
     mjx = make_cfg("task=quadcopter", "task.backend=mjx")
     cfg = make_cfg("task=quadcopter", "task.backend=mjx", "trainer.device=cpu")

@@ -6,7 +6,7 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.common.snapshot import restores_episodes
 from torchrl_ahrs.envs.registry import make_env
 

@@ -13,7 +13,7 @@ from torchrl.envs.utils import check_env_specs
 
 pytest.importorskip("envpool")
 
-from torchrl_ahrs.app.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.app.shared.settings import load_task_config  # noqa: E402
 from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv  # noqa: E402
 from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 

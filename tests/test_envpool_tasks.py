@@ -12,7 +12,7 @@ import torch
 
 pytest.importorskip("envpool")
 
-from torchrl_ahrs.app.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.app.shared.settings import load_task_config  # noqa: E402
 from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 
 

@@ -15,9 +15,9 @@ import torch
 from conftest import make_cfg
 from PIL import Image
 
-from torchrl_ahrs.app.config import save_config
-from torchrl_ahrs.app.policy import EvaluationError, load_policy
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
+from torchrl_ahrs.app.shared.config import save_config
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.evaluate import evaluate
 from torchrl_ahrs.train import train
 
@@ -124,8 +124,8 @@ def test_training_video_hook_writes_gif_and_tensorboard_video(trained_run):
     script = (
         "from torchrl_ahrs.evaluation.render import select_gl_backend; select_gl_backend()\n"
         "import sys\n"
-        "from torchrl_ahrs.app.policy import load_policy\n"
-        "from torchrl_ahrs.app.video import VideoLog\n"
+        "from torchrl_ahrs.app.evaluate.policy import load_policy\n"
+        "from torchrl_ahrs.app.train.video import VideoLog\n"
         "from tensorboard.backend.event_processing.event_accumulator import EventAccumulator\n"
         f"policy = load_policy({str(trained_run)!r})\n"
         f"hook = VideoLog(policy.make_envs, policy.actor, {str(trained_run)!r}, interval=2, "

@@ -14,8 +14,8 @@ from tensordict import TensorDict
 from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_ahrs.app.export import ExportError, actor_actions, export, reference_observations
-from torchrl_ahrs.app.policy import load_policy
+from torchrl_ahrs.app.evaluate.export import ExportError, actor_actions, export, reference_observations
+from torchrl_ahrs.app.evaluate.policy import load_policy
 from torchrl_ahrs.train import train
 from torchrl_ahrs.training.deploy import DeterministicPolicy
 from torchrl_ahrs.training.models import RunningNorm, build_actor

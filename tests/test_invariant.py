@@ -9,8 +9,8 @@ from conftest import make_cfg
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.objectives.value import GAE
 
-from torchrl_ahrs.app.build import build_estimator_and_loss, build_networks, env_factory
-from torchrl_ahrs.app.settings import scheduler_settings
+from torchrl_ahrs.app.shared.settings import scheduler_settings
+from torchrl_ahrs.app.train.build import build_estimator_and_loss, build_networks, env_factory
 from torchrl_ahrs.scheduling import build_scheduler
 
 

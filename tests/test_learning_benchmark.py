@@ -57,7 +57,7 @@ def test_rsl_rl_adapter_reports_auto_reset_observations_time_outs_and_episode_re
         from rsl_rl_adapter import RslRlVecEnv, StopTraining
     finally:
         sys.path.remove(str(BENCHMARKS))
-    from torchrl_ahrs.app.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_config
     from torchrl_ahrs.envs.registry import make_env
 
     rollouts = []

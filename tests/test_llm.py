@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.app.run_dir import DECISIONS, LLM_CALLS
-from torchrl_ahrs.app.settings import scheduler_settings
+from torchrl_ahrs.app.shared.run_dir import DECISIONS, LLM_CALLS
+from torchrl_ahrs.app.shared.settings import scheduler_settings
 from torchrl_ahrs.llm.answers import parse_rule_answer, parse_weights_answer
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, ReplayMiss
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler, load_repository
@@ -285,7 +285,7 @@ def spread(mean_returns, var_returns, history, previous_weights):
 
 
 def test_generate_rules_writes_a_sandboxed_repository(server, tmp_path):
-    from torchrl_ahrs.app.generate_rules import generate
+    from torchrl_ahrs.app.generate.rules import generate
 
     server.script = [("ok", GENERATED_ANSWER)]
     cfg = OmegaConf.create(

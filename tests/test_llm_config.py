@@ -9,7 +9,7 @@ from llm_server import free_port
 from omegaconf import OmegaConf
 
 from torchrl_ahrs import LLMRuleSelector, RuleScheduler
-from torchrl_ahrs.app.settings import scheduler_settings
+from torchrl_ahrs.app.shared.settings import scheduler_settings
 from torchrl_ahrs.scheduling import build_selector, load_repository
 from torchrl_ahrs.scheduling.selectors import DecisionContext, Summary
 

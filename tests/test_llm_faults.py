@@ -12,8 +12,8 @@ import torch
 from conftest import make_cfg
 from llm_server import ScriptedServer, context_length_error, free_port
 
-from torchrl_ahrs.app.run_dir import DECISIONS, LLM_CALLS
-from torchrl_ahrs.app.runs import read_scalar
+from torchrl_ahrs.app.shared.run_dir import DECISIONS, LLM_CALLS
+from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig, retry_after
 from torchrl_ahrs.scheduling import RuleScheduler, load_repository
 from torchrl_ahrs.scheduling.llm_selectors import LLMRuleSelector

@@ -8,9 +8,9 @@ import pytest
 from conftest import make_cfg
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from torchrl_ahrs.app.checkpoint import truncate_metrics
-from torchrl_ahrs.app.run_dir import RunDirectory
-from torchrl_ahrs.app.runs import read_scalar
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.checkpoint import truncate_metrics
+from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.train import train
 from torchrl_ahrs.training.loggers import CSV_HEADER
 

@@ -8,10 +8,10 @@ import pytest
 import torch
 from hydra import compose, initialize_config_module
 
-from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.app.iteration import train
-from torchrl_ahrs.app.run_dir import RunDirectory
-from torchrl_ahrs.app.runs import read_scalar
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.iteration import train
+from torchrl_ahrs.app.train.runs import read_scalar
 
 FRAMES, ITERATIONS, EPOCHS = 64, 3, 3
 COMPONENTS = ["distance", "arrival", "ctrl"]

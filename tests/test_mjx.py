@@ -25,7 +25,7 @@ import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
-from torchrl_ahrs.app.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.app.shared.settings import load_task_config  # noqa: E402
 from torchrl_ahrs.envs.backends import mjx as mjx_backend  # noqa: E402
 from torchrl_ahrs.envs.registry import get_builder, make_env  # noqa: E402
 

@@ -10,9 +10,9 @@ from tensordict import TensorDict
 from torchrl.data import Bounded
 from torchrl.envs import ExplorationType, set_exploration_type
 
-from torchrl_ahrs.app.build import build_networks, env_factory
-from torchrl_ahrs.app.config import validate_config
-from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.app.shared.config import validate_config
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.train.build import build_networks, env_factory
 from torchrl_ahrs.training.models import RunningNorm, build_actor
 
 

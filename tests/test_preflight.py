@@ -1,4 +1,4 @@
-"""Start-up checks (torchrl_ahrs/app/preflight.py): every mistake of a user's first hour that used to train, exit 0
+"""Start-up checks (torchrl_ahrs/app/train/preflight.py): every mistake of a user's first hour that used to train, exit 0
 or end in a traceback is one line on stderr and exit status 2, through the real command line."""
 
 import os
@@ -8,8 +8,8 @@ import sys
 import pytest
 from conftest import make_cfg
 
-from torchrl_ahrs.app.build import env_factory
-from torchrl_ahrs.app.preflight import PreflightError, check_task_rewards
+from torchrl_ahrs.app.train.build import env_factory
+from torchrl_ahrs.app.train.preflight import PreflightError, check_task_rewards
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig
 
 SHORT = [
@@ -79,7 +79,7 @@ def test_the_real_command_line_refuses_a_plus_key(tmp_path):
 
 def test_shipped_optional_keys_stay_accepted():
     """A key one option of a group ships (num_threads: several tasks) is fine with + on any option."""
-    from torchrl_ahrs.app.preflight import check_command_line
+    from torchrl_ahrs.app.train.preflight import check_command_line
 
     check_command_line(["task=point_reach", "+task.num_threads=1", "+task.critic_observation=x", "hydra.run.dir=x"])
     check_command_line(["+sweep=smoke", "hydra/launcher=local", "method.rule=a,b", "seed=range(1,3)", "-m"])
@@ -104,7 +104,7 @@ def test_missing_llm_key_is_refused_at_start(tmp_path, loopback_only):
         result, "error: llm.model=openai/gpt-4o needs the OPENAI_API_KEY environment variable, which is not set"
     )
     # the same config with a key (or a local server) passes the check: it is the key that is missing
-    from torchrl_ahrs.app.preflight import check_config
+    from torchrl_ahrs.app.train.preflight import check_config
 
     check_config(make_cfg("task=point_reach", "method=ahrs", "llm=openai", "llm.api_base=http://127.0.0.1:9/v1"))
     check_config(make_cfg("task=point_reach", "method=ppo", "llm=openai"))  # ppo never asks the LLM

@@ -8,7 +8,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.app.settings import load_task_config, scheduler_settings
+from torchrl_ahrs.app.shared.settings import load_task_config, scheduler_settings
 from torchrl_ahrs.envs.tasks.ant import AntEnv, ant_reward_terms
 from torchrl_ahrs.llm.task_text import AUX_MEANING, reward_code_blocks, source_of
 from torchrl_ahrs.rewards.auxiliary import shipped_aux_path

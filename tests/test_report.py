@@ -14,7 +14,7 @@ import yaml
 from conftest import make_cfg
 from hydra.utils import get_class
 
-from torchrl_ahrs.app.report import write_report
+from torchrl_ahrs.app.report.report import write_report
 from torchrl_ahrs.reporting.intervals import improvement_probability, iqm_interval, mean_interval
 from torchrl_ahrs.reporting.stats import change_percent, final_return
 

@@ -17,9 +17,9 @@ from hydra import compose, initialize_config_module
 from tensordict import TensorDictBase
 
 from torchrl_ahrs.app import checkpoint as checkpoint_module
-from torchrl_ahrs.app.iteration import train
-from torchrl_ahrs.app.run_dir import RunDirectory
-from torchrl_ahrs.app.runs import read_scalar
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.iteration import train
+from torchrl_ahrs.app.train.runs import read_scalar
 
 TIMING = {"frames_per_second"}  # metrics that measure the machine, not the run
 

@@ -8,8 +8,8 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
-from torchrl_ahrs.app.run_dir import DECISIONS
-from torchrl_ahrs.app.settings import scheduler_settings
+from torchrl_ahrs.app.shared.run_dir import DECISIONS
+from torchrl_ahrs.app.shared.settings import scheduler_settings
 from torchrl_ahrs.scheduling import (
     BanditSelector,
     ConstantSelector,

@@ -17,8 +17,8 @@ import uuid
 import pytest
 from conftest import make_cfg
 
-from torchrl_ahrs.app.redaction import RedactHydraOutput, is_secret_key, secret_values
-from torchrl_ahrs.app.run_dir import LLM_CALLS
+from torchrl_ahrs.app.shared.redaction import RedactHydraOutput, is_secret_key, secret_values
+from torchrl_ahrs.app.shared.run_dir import LLM_CALLS
 from torchrl_ahrs.llm.client import LLMClient, LLMConfig
 
 
@@ -105,9 +105,9 @@ def test_environment_key_is_sent_and_masked_in_the_call_log(llm_server, tmp_path
 def test_hydra_output_is_registered_for_redaction():
     cfg = make_cfg(hydra=True)
     targets = [callback.get("_target_") for callback in (cfg.hydra.callbacks or {}).values()]
-    assert "torchrl_ahrs.app.redaction.RedactHydraOutput" in targets, (
+    assert "torchrl_ahrs.app.shared.redaction.RedactHydraOutput" in targets, (
         "conf/config.yaml must register hydra.callbacks.redact_secrets._target_: "
-        "torchrl_ahrs.app.redaction.RedactHydraOutput, or .hydra/ keeps llm.api_key=... verbatim"
+        "torchrl_ahrs.app.shared.redaction.RedactHydraOutput, or .hydra/ keeps llm.api_key=... verbatim"
     )
     assert RedactHydraOutput  # importable by Hydra's instantiate
 

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from torchrl_ahrs.app.runs import load_sweep
+from torchrl_ahrs.app.train.runs import load_sweep
 
 SWEEP = [sys.executable, "-m", "torchrl_ahrs.sweep", "task=quadcopter", "method=ppo,mcppo", "seed=0",
          "trainer.total_frames=8192", "trainer.num_envs=16", "trainer.frames_per_batch=512",

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.app.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.registry import _BUILDERS, _MJX_BUILDERS, BACKENDS
 
 TASK_DIR = Path(__file__).resolve().parents[1] / "conf" / "task"

@@ -7,7 +7,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from torchrl_ahrs.app.settings import schedule_settings, scheduler_settings
+from torchrl_ahrs.app.shared.settings import schedule_settings, scheduler_settings
 from torchrl_ahrs.scheduling import RuleScheduler, load_repository
 from torchrl_ahrs.scheduling.mapping import WeightMapping
 from torchrl_ahrs.scheduling.selectors import FixedSelector

@@ -3,7 +3,7 @@
 They run before any environment is built (:func:`check_command_line` on the raw overrides, before Hydra
 composes; :func:`check_config` on the composed config), except :func:`check_reward_terms`, which needs a few
 real steps of the task and runs right after its environment is built. Each raises :class:`PreflightError`
-(a :class:`~torchrl_ahrs.app.errors.ConfigError`), which the entry points print as ``error: <message>`` with
+(a :class:`~torchrl_ahrs.app.shared.errors.ConfigError`), which the entry points print as ``error: <message>`` with
 exit status 2. What each catches, and what happened without it:
 
 * a key that is not in the shipped config, with or without ``+`` (Hydra's own hint for a misspelt key is
@@ -32,8 +32,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from torchrl_ahrs.app.config import dotted_keys
-from torchrl_ahrs.app.errors import ConfigError
+from torchrl_ahrs.app.shared.config import dotted_keys
+from torchrl_ahrs.app.shared.errors import ConfigError
 
 __all__ = [
     "PreflightError",
@@ -117,7 +117,7 @@ def check_command_line(arguments: Iterable[str], config_package: str = "torchrl_
         >>> check_command_line(["+trainer.total_frame=1000"])
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.preflight.PreflightError: +trainer.total_frame is not a key of the shipped config (did you mean trainer.total_frames?); a run would ignore it
+        torchrl_ahrs.app.train.preflight.PreflightError: +trainer.total_frame is not a key of the shipped config (did you mean trainer.total_frames?); a run would ignore it
     """
     parsed = [item for item in map(override_key, arguments) if item is not None]
     if not parsed:
@@ -146,7 +146,7 @@ def check_config(cfg: DictConfig) -> None:
         >>> check_config(OmegaConf.create({"seed": 0, "trainer": {"lr": float("nan")}}))
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.preflight.PreflightError: trainer.lr must be a finite number, got nan
+        torchrl_ahrs.app.train.preflight.PreflightError: trainer.lr must be a finite number, got nan
     """
     try:
         resolved = OmegaConf.to_container(cfg, resolve=True)

@@ -19,9 +19,9 @@ import torch
 from omegaconf import OmegaConf
 from torchrl.envs.transforms import Transform
 
-from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.app.settings import load_task_config
-from torchrl_ahrs.app.settings import select as _select
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import select as _select
 from torchrl_ahrs.envs.registry import available_tasks, make_env
 from torchrl_ahrs.rewards.auxiliary import (
     AUX,

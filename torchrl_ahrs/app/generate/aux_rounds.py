@@ -21,8 +21,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.app.run_dir import RunDirectory
-from torchrl_ahrs.app.runs import read_scalar
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.reporting.stats import final_return
 
 WINDOW = 0.25  # the first / last quarter of a round are compared in the feedback
@@ -118,8 +118,8 @@ def scores_text(scores: dict[str, float], components: list[str], frames: int) ->
 
 def train_round(cfg: DictConfig, aux_path: Path, run_dir: Path, frames: int) -> dict[str, float]:
     """Trains with candidate ``aux_path`` for ``frames`` frames in ``run_dir``; returns its scores."""
-    from torchrl_ahrs.app.config import resolve_components
-    from torchrl_ahrs.app.iteration import train
+    from torchrl_ahrs.app.shared.config import resolve_components
+    from torchrl_ahrs.app.train.iteration import train
 
     round_cfg = round_config(cfg, aux_path, frames)
     train(round_cfg, run_dir)

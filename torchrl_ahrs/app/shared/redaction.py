@@ -15,7 +15,9 @@ replaced, so it also reaches ``hydra.job.override_dirname`` and any interpolated
 from __future__ import annotations
 
 import logging
+import os
 import re
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -23,7 +25,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.app.run_dir import HYDRA_FILES, MULTIRUN, REDACTED
+from torchrl_ahrs.app.shared.run_dir import HYDRA_FILES, MULTIRUN, REDACTED
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +78,49 @@ def secret_values(config: Any, overrides: Iterable[str] = ()) -> set[str]:
     return {value for value in found if len(value) > 3 and value not in (REDACTED, "null", "None")}
 
 
+def redact(text: str, cfg: Any, overrides: Iterable[str] | None = None) -> str:
+    """``text`` with every secret of ``cfg``, of the command line (``overrides``, default ``sys.argv[1:]``)
+    and of credential-like environment variables replaced by ``<redacted>``.
+
+    Example:
+        >>> redact("key sk-abcdef failed", {"llm": {"api_key": "sk-abcdef"}}, [])
+        'key <redacted> failed'
+    """
+    secrets = secret_values(cfg, sys.argv[1:] if overrides is None else overrides)
+    secrets |= {
+        value
+        for name, value in os.environ.items()
+        if any(mark in name.upper() for mark in ("KEY", "TOKEN", "SECRET", "PASSWORD")) and len(value) > 7
+    }
+    for secret in sorted(secrets, key=len, reverse=True):  # longest first: a secret may contain another
+        text = text.replace(secret, REDACTED)
+    return text
+
+
+class RedactingStream:
+    """A text stream that replaces each of ``secrets`` before writing: Hydra's own messages (a composition
+    error quotes the override, ``+llm.api_key=sk-...``) are printed before any of our code could catch them.
+
+    Example:
+        >>> import io
+        >>> stream = RedactingStream(io.StringIO(), {"sk-abcdef"})
+        >>> _ = stream.write("bad key sk-abcdef")
+        >>> stream.getvalue()
+        'bad key <redacted>'
+    """
+
+    def __init__(self, stream: Any, secrets: Iterable[str]):
+        self.stream, self.secrets = stream, sorted(secrets, key=len, reverse=True)
+
+    def write(self, text: str) -> int:
+        for secret in self.secrets:
+            text = text.replace(secret, REDACTED)
+        return self.stream.write(text)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
 def redact_files(paths: Iterable[Path], secrets: set[str]) -> list[Path]:
     """Replaces each secret in each existing text file (atomically); returns the files changed."""
     changed = []
@@ -102,7 +147,7 @@ class RedactHydraOutput(Callback):
         hydra:
           callbacks:
             redact_secrets:
-              _target_: torchrl_ahrs.app.redaction.RedactHydraOutput
+              _target_: torchrl_ahrs.app.shared.redaction.RedactHydraOutput
 
     Example:
         >>> import tempfile

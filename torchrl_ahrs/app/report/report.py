@@ -1,6 +1,6 @@
 """The paper-style report of a sweep behind ``python -m torchrl_ahrs.report <sweep dir> [...] [--out DIR]``.
 
-Reads every run directory below the sweep directories (several are pooled) (see :mod:`torchrl_ahrs.app.runs`) and writes
+Reads every run directory below the sweep directories (several are pooled) (see :mod:`torchrl_ahrs.app.train.runs`) and writes
 to ``--out`` (default ``<sweep dir>/report``):
 
 - ``report.md``: the method x task table of the paper's Tables I-II (final return mean ± std over seeds,
@@ -26,7 +26,7 @@ import csv
 from pathlib import Path
 from typing import Any
 
-from torchrl_ahrs.app.runs import load_sweep
+from torchrl_ahrs.app.train.runs import load_sweep
 from torchrl_ahrs.reporting import figures
 from torchrl_ahrs.reporting.records import Run
 from torchrl_ahrs.reporting.stats import FINAL_WINDOW

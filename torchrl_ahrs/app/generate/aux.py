@@ -12,7 +12,7 @@ agent and test it"), each accepted candidate is trained for ``aux.generate.train
 the composed method (default ``ahrs``; any method with an auxiliary branch), each component's episode
 returns, weights and effective shares are sent back to the LLM, and it writes the next candidate, until
 R candidates have been trained or the attempts run out. The candidate with the highest final
-``return/total`` is chosen (see :mod:`torchrl_ahrs.app.aux_rounds`). With R = 0 the first accepted
+``return/total`` is chosen (see :mod:`torchrl_ahrs.app.generate.aux_rounds`). With R = 0 the first accepted
 candidate is chosen.
 
 Output: ``+output=<dir>`` (default ``outputs/aux/<task>-<model>-<time>/``) receives the chosen
@@ -33,10 +33,10 @@ from typing import Any
 import torch
 from omegaconf import DictConfig
 
-from torchrl_ahrs.app.aux_rounds import Candidate, choose, scores_text, train_round, write_index
-from torchrl_ahrs.app.auxiliary import collect_aux_inputs
-from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
-from torchrl_ahrs.app.settings import generation_output_dir, llm_and_task, select
+from torchrl_ahrs.app.generate.aux_rounds import Candidate, choose, scores_text, train_round, write_index
+from torchrl_ahrs.app.shared.auxiliary import collect_aux_inputs
+from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
+from torchrl_ahrs.app.shared.settings import generation_output_dir, llm_and_task, select
 from torchrl_ahrs.common.text import ANSWER_CHARS, cap_text
 from torchrl_ahrs.llm.aux_prompt import aux_feedback_message, aux_reward_prompt, training_feedback_message
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
@@ -167,7 +167,7 @@ def generate(cfg: Any, output_dir: Path) -> AuxGenerationResult:
 
 
 def _round_components(cfg: Any) -> list[str]:
-    from torchrl_ahrs.app.config import resolve_components
+    from torchrl_ahrs.app.shared.config import resolve_components
 
     return resolve_components(cfg)
 

@@ -19,7 +19,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from torchrl_ahrs.app.build import (
+from torchrl_ahrs.app.shared.config import num_minibatches, save_config, validate_config
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import METRICS, RunDirectory
+from torchrl_ahrs.app.train.build import (
     build_checked_scheduler,
     build_collector,
     build_estimator_and_loss,
@@ -27,7 +30,7 @@ from torchrl_ahrs.app.build import (
     env_factory,
     resolve_devices,
 )
-from torchrl_ahrs.app.checkpoint import (
+from torchrl_ahrs.app.train.checkpoint import (
     CheckpointHook,
     GeneratorState,
     GlobalRNG,
@@ -39,11 +42,8 @@ from torchrl_ahrs.app.checkpoint import (
     truncate_jsonl,
     truncate_metrics,
 )
-from torchrl_ahrs.app.config import num_minibatches, save_config, validate_config
-from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.app.preflight import check_config, check_task_rewards
-from torchrl_ahrs.app.run_dir import METRICS, RunDirectory
-from torchrl_ahrs.app.video import register_video_log
+from torchrl_ahrs.app.train.preflight import check_config, check_task_rewards
+from torchrl_ahrs.app.train.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.loggers import build_logger
@@ -56,7 +56,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     """Runs one training job (or continues it, when ``cfg.resume`` names ``run_dir``, which holds a
     checkpoint) and returns the last logged metrics."""
     started = time.monotonic()
-    check_config(cfg)  # the start-up checks: before anything is built or written (app/preflight.py)
+    check_config(cfg)  # the start-up checks: before anything is built or written (app/train/preflight.py)
     validate_config(cfg)
     run = RunDirectory(run_dir).mkdir()
     done = collected_frames(run.path) if cfg.get("resume") else None
@@ -124,7 +124,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         anneal_lr=bool(cfg.trainer.anneal_lr),
         kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
     )
-    # the run's state: one entry per owner (listed in app/checkpoint.py); saved after the iteration's last step
+    # the run's state: one entry per owner (listed in app/train/checkpoint.py); saved after the iteration's last step
     registry: dict[str, Any] = {
         "state": progress,
         "collector": collector,

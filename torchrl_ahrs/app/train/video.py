@@ -29,7 +29,7 @@ from torchrl.record import VideoRecorder
 from torchrl.record.loggers import Logger
 from torchrl.trainers import Trainer, TrainerHookBase
 
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.evaluation.episodes import record_frames
 from torchrl_ahrs.evaluation.render import base_env, make_frame_source, write_clip
 
@@ -91,7 +91,7 @@ class VideoLog(TrainerHookBase):
 
     Args:
         make_envs: ``(num_envs, seed) -> env``, the run's environment factory
-            (:class:`~torchrl_ahrs.app.build.EnvFactory`).
+            (:class:`~torchrl_ahrs.app.train.build.EnvFactory`).
         policy: the actor (reads ``"observation"``).
         run_dir: the run directory (clips go to ``videos/``, TensorBoard summaries to ``metrics/``).
         interval: iterations between clips.

@@ -32,8 +32,8 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_ahrs.app.policy import EvaluationError, load_policy
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.training.deploy import DeterministicPolicy
 
 FORMATS = ("torchscript", "onnx")
@@ -100,7 +100,7 @@ def export(
         >>> export("/nonexistent")
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.policy.EvaluationError: no run directory at /nonexistent
+        torchrl_ahrs.app.evaluate.policy.EvaluationError: no run directory at /nonexistent
     """
     unknown = [name for name in formats if name not in FORMATS]
     if unknown or not formats:

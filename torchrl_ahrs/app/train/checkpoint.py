@@ -1,8 +1,8 @@
 """Atomic checkpoints and exact resumption of a training run.
 
-A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.run_dir.RunDirectory.checkpoint>`) is the
+A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.shared.run_dir.RunDirectory.checkpoint>`) is the
 state of the run's one registry, ``{name: object with state_dict / load_state_dict}``, which
-:func:`torchrl_ahrs.app.iteration.train` builds; each thing the next iteration depends on has one entry:
+:func:`torchrl_ahrs.app.train.iteration.train` builds; each thing the next iteration depends on has one entry:
 
 - ``state``: the loop's counters (collected frames, optimiser steps; :class:`~torchrl_ahrs.training.loop.Progress`);
 - ``collector``: frame and iteration counters, the environments (through
@@ -55,8 +55,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +77,7 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
 
 
 def mark_finished(run_dir: Path, collected_frames: int, total_frames: int) -> Path:
-    """Writes the run directory's ``finished.json`` (see :mod:`torchrl_ahrs.app.run_dir`); returns its path."""
+    """Writes the run directory's ``finished.json`` (see :mod:`torchrl_ahrs.app.shared.run_dir`); returns its path."""
     path = RunDirectory(run_dir).finished
     path.write_text(json.dumps({"collected_frames": int(collected_frames), "total_frames": int(total_frames)}) + "\n")
     return path

@@ -1,5 +1,5 @@
 """Finding and reading the run directories of a sweep into :class:`~torchrl_ahrs.reporting.records.Run`
-records (no statistics, no plotting); file names from :mod:`torchrl_ahrs.app.run_dir`.
+records (no statistics, no plotting); file names from :mod:`torchrl_ahrs.app.shared.run_dir`.
 
 A sweep directory holds one run directory per job, anywhere below it (``python -m torchrl_ahrs.sweep``
 puts them at ``<task>/<method>/seed_<seed>``). A run directory is recognised by ``config.yaml`` (written by
@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from torchrl_ahrs.app.checkpoint import collected_frames
-from torchrl_ahrs.app.run_dir import CONFIG, HYDRA, MULTIRUN, RunDirectory
+from torchrl_ahrs.app.shared.run_dir import CONFIG, HYDRA, MULTIRUN, RunDirectory
+from torchrl_ahrs.app.train.checkpoint import collected_frames
 from torchrl_ahrs.reporting.records import Run, method_label, method_rank
 from torchrl_ahrs.reporting.stats import final_return, final_window_mask
 

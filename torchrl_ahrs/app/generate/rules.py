@@ -21,8 +21,8 @@ from typing import Any, cast
 
 from omegaconf import DictConfig
 
-from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
-from torchrl_ahrs.app.settings import generation_output_dir, llm_and_task
+from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
+from torchrl_ahrs.app.shared.settings import generation_output_dir, llm_and_task
 from torchrl_ahrs.llm.client import LLMClient, prompt_hash
 from torchrl_ahrs.llm.generation import GenerationError, extract_code_blocks
 from torchrl_ahrs.llm.prompts import rule_generation_prompt

@@ -9,10 +9,10 @@ from typing import Any, cast
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.app.auxiliary import aux_leaves, auxiliary_components
-from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.app.redaction import is_secret_key
-from torchrl_ahrs.app.run_dir import REDACTED, RunDirectory
+from torchrl_ahrs.app.shared.auxiliary import aux_leaves, auxiliary_components
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.redaction import is_secret_key
+from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
 from torchrl_ahrs.training.models import DISTRIBUTIONS
@@ -53,7 +53,7 @@ def refuse_renamed(keys: Iterable[str]) -> None:
         >>> refuse_renamed(["trainer.lr", "ppo.entropy_coef"])
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.errors.ConfigError: ppo.entropy_coef was renamed: use ppo.entropy_coeff
+        torchrl_ahrs.app.shared.errors.ConfigError: ppo.entropy_coef was renamed: use ppo.entropy_coeff
     """
     for key in keys:
         key = key.lstrip("+~")
@@ -153,7 +153,7 @@ def check_device(device: Any, collector: str = "sync") -> None:
         >>> check_device("gpu")
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.errors.ConfigError: trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'
+        torchrl_ahrs.app.shared.errors.ConfigError: trainer.device must be null, cpu, cuda or cuda:<index>, got 'gpu'
     """
     if device is None:
         return

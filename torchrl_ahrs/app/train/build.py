@@ -20,11 +20,11 @@ from torchrl.collectors import MultiAsyncCollector, MultiSyncCollector
 from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor
 
-from torchrl_ahrs.app.auxiliary import TransformFactory, auxiliary_transform
-from torchrl_ahrs.app.config import resolve_components
-from torchrl_ahrs.app.errors import ConfigError
-from torchrl_ahrs.app.run_dir import RunDirectory, calls_log
-from torchrl_ahrs.app.settings import scheduler_settings
+from torchrl_ahrs.app.shared.auxiliary import TransformFactory, auxiliary_transform
+from torchrl_ahrs.app.shared.config import resolve_components
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
+from torchrl_ahrs.app.shared.settings import scheduler_settings
 from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
 from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler

@@ -7,7 +7,7 @@
       config.yaml                the composed, validated config, secrets replaced by REDACTED (written at start;
                                  resume and evaluate rebuild the run from it)
       checkpoint.pt              the state registry: everything the next iteration depends on (see
-                                 app/checkpoint.py); written atomically every checkpoint.interval iterations
+                                 app/train/checkpoint.py); written atomically every checkpoint.interval iterations
                                  and at the end
       finished.json              written when the frame budget is reached: {"collected_frames", "total_frames"};
                                  small and committed with a sweep's results (checkpoints are not), so a rerun sweep

@@ -1,4 +1,4 @@
-"""A trained run's policy, rebuilt from its saved config and checkpoint (:mod:`torchrl_ahrs.app.run_dir`)."""
+"""A trained run's policy, rebuilt from its saved config and checkpoint (:mod:`torchrl_ahrs.app.shared.run_dir`)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torchrl.modules import ProbabilisticActor
 
-from torchrl_ahrs.app.build import EnvFactory, build_networks, env_factory
-from torchrl_ahrs.app.run_dir import RunDirectory
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.build import EnvFactory, build_networks, env_factory
 
 
 class EvaluationError(RuntimeError):
@@ -47,7 +47,7 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
         >>> load_policy("/nonexistent")
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.policy.EvaluationError: no run directory at /nonexistent
+        torchrl_ahrs.app.evaluate.policy.EvaluationError: no run directory at /nonexistent
     """
     run = RunDirectory(run_dir)
     if not run.path.is_dir():

@@ -24,8 +24,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.app.policy import EvaluationError, load_policy
-from torchrl_ahrs.app.run_dir import EVALUATION, RunDirectory
+from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
+from torchrl_ahrs.app.shared.run_dir import EVALUATION, RunDirectory
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.evaluation.episodes import record_frames, run_episodes, summarize
 from torchrl_ahrs.evaluation.render import base_env, clip_format, make_frame_source, write_clip
@@ -49,7 +49,7 @@ def evaluate(
         >>> evaluate("/nonexistent")
         Traceback (most recent call last):
         ...
-        torchrl_ahrs.app.policy.EvaluationError: no run directory at /nonexistent
+        torchrl_ahrs.app.evaluate.policy.EvaluationError: no run directory at /nonexistent
     """
     if episodes < 1:
         raise EvaluationError(f"episodes must be a positive integer, got {episodes}")
