@@ -29,7 +29,7 @@ counts the frames it was trained on. torch runs ``--torch-threads`` (default 1, 
 threads in every peer: at two threads the torchrl peer's minibatch steps ran ~20 times slower (and its
 collection ~4 times) on this loaded 2-core machine. Every final policy is evaluated the same way, as
 ``python -m torchrl_ahrs.evaluate`` does: our task's env (for ant_v5 EnvPool's Ant-v5, which steps like
-gymnasium's Ant-v5: ``tests/test_envpool.py``), 10 environments seeded 12345, each one's first
+gymnasium's Ant-v5: ``tests/envs/test_envpool.py``), 10 environments seeded 12345, each one's first
 episode, the mean action; the return is the native total reward (Cassie also reports episode length
 and the velocity-tracking error). Training curves record, once per collected batch, the wall time,
 frames and the mean return of the episodes that ended in it (sampled actions); plots and the

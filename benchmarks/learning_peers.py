@@ -6,7 +6,7 @@
 A run trains until the wall-clock budget (counted from ``--t0``, the moment ``learning.py`` launched the
 process, so start-up counts as it does for ours) or the frame cap, then evaluates its policy with
 :func:`evaluate_policy` on our task's environment (for ``ant_v5``: EnvPool's Ant-v5, which steps like
-gymnasium's Ant-v5, ``tests/test_envpool.py``) exactly as ``python -m torchrl_ahrs.evaluate`` evaluates
+gymnasium's Ant-v5, ``tests/envs/test_envpool.py``) exactly as ``python -m torchrl_ahrs.evaluate`` evaluates
 ours: 10 environments seeded 12345, each one's first episode, the policy's mean action. It writes into
 ``--run-dir``:
 

@@ -10,6 +10,6 @@
 - ``generate/``: ``generate_rules`` and ``generate_aux``.
 
 A room imports ``shared`` and, to read or start what ``train`` writes, ``train``; never another room
-(``tests/test_architecture.py`` checks it). The root modules (``torchrl_ahrs/train.py`` ...) declare the
+(``tests/package/test_architecture.py`` checks it). The root modules (``torchrl_ahrs/train.py`` ...) declare the
 commands.
 """

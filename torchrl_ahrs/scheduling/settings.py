@@ -1,5 +1,5 @@
 """The schedule's settings as typed records whose defaults are written once: the Python API and the shipped
-config agree (``tests/test_defaults.py`` compares them key by key). The library never reads the Hydra tree;
+config agree (``tests/app/test_defaults.py`` compares them key by key). The library never reads the Hydra tree;
 ``torchrl_ahrs.app.shared.settings`` translates a composed config into these records.
 
 * :class:`ScheduleSettings`: the ``scheduler`` section (interval, mapping, history, repository file).

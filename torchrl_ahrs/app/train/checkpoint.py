@@ -25,7 +25,7 @@ the previous checkpoint intact. Resuming loads it into a run built anew from the
 every piece has been built (and has drawn whatever random numbers building draws), so the resumed run
 continues bit for bit: on CPU a run interrupted after any checkpoint and resumed equals the
 uninterrupted run (parameters, optimiser, metric rows except timing, scheduler decisions;
-``tests/test_resume.py``). Exact with ``trainer.collector=sync`` (the default) and ``scheduler.blocking=true``;
+``tests/system/test_resume.py``). Exact with ``trainer.collector=sync`` (the default) and ``scheduler.blocking=true``;
 worker processes of ``multi``/``async`` collectors sample with generators of their own, and a
 non-blocking scheduler decides when its thread answers. EnvPool-backed tasks (``ant_v5``, ``humanoid``,
 ``go1_terrain``, ``leap_cube``, ``shadow_hand``, ``dmc_*``) cannot snapshot their C++ simulators: a resumed

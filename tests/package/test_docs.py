@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("sphinx")
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "api"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "api"
 
 
 def test_api_reference_builds_without_warnings(tmp_path):

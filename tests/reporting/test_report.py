@@ -1,11 +1,10 @@
 """Sweep report: table values against hand computation on a synthetic sweep, failed and missing seeds
-listed, statistics on hand-checkable inputs, the sweep presets load, and the smoke sweep end to end."""
+listed, statistics on hand-checkable inputs, and the sweep presets load. (The smoke sweep end to end:
+``tests/system/test_smoke_sweep.py``.)"""
 
 import csv
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -187,26 +186,6 @@ def test_sweep_presets_load():
     get_class(slurm.hydra.launcher._target_)  # the submitit plugin is installed
     smoke = make_cfg("+sweep=smoke", hydra=True)
     assert len(smoke.hydra.sweeper.params.seed.split(",")) == 2
-
-
-@pytest.mark.slow
-def test_smoke_sweep_and_report_end_to_end(tmp_path):
-    sweep = tmp_path / "smoke"
-    subprocess.run(
-        [sys.executable, "-m", "torchrl_ahrs.sweep", "+sweep=smoke", f"hydra.sweep.dir={sweep}"],
-        check=True,
-        capture_output=True,
-        timeout=300,
-    )
-    subprocess.run([sys.executable, "-m", "torchrl_ahrs.report", str(sweep)], check=True, timeout=120)
-    runs = read_csv(sweep / "report" / "runs.csv")
-    assert len(runs) == 8 and {row["status"] for row in runs} == {"ok"}
-    summary = read_csv(sweep / "report" / "summary.csv")
-    assert {(row["task"], row["method"]) for row in summary} == {
-        (task, method) for task in ("point_reach", "quadcopter") for method in ("ppo", "ahrs_r")
-    }
-    assert all(math.isfinite(float(row["mean"])) for row in summary)
-    assert (sweep / "report" / "weights_quadcopter.png").is_file()
 
 
 def test_pooled_sweeps_expect_the_union_of_their_seeds(tmp_path):

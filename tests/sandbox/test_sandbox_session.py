@@ -7,9 +7,9 @@ import time
 
 import pytest
 import torch
-from conftest import make_cfg
-from test_auxiliary import FAST
-from test_sandbox import HEAD, ORDINARY_AUX, ORDINARY_RULES, RUNTIME_HOSTILE, TASK_K, UNRESTRICTED_HOSTILE
+from conftest import FAST, make_cfg
+from test_sandbox_accepts import ORDINARY_AUX, ORDINARY_RULES, TASK_K
+from test_sandbox_refuses import HEAD, RUNTIME_HOSTILE, UNRESTRICTED_HOSTILE
 
 from torchrl_ahrs.rewards.auxiliary import AuxiliaryReward, AuxiliaryRewardError, load_aux_function
 from torchrl_ahrs.sandbox import (

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "torchrl_ahrs"
+PACKAGE = Path(__file__).resolve().parents[2] / "torchrl_ahrs"
 MAX_LINES = 400
 
 

@@ -20,7 +20,7 @@ from torchrl_ahrs.scheduling import (
 )
 from torchrl_ahrs.scheduling.scheduler import RuleScheduler
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = Path(__file__).resolve().parents[2] / "conf"
 
 
 def test_the_config_scheduler_section_equals_the_python_defaults():

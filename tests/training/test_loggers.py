@@ -14,7 +14,7 @@ from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.train import train
 from torchrl_ahrs.training.loggers import CSV_HEADER
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FRAMES, ITERATIONS = 512, 3
 TINY_RUN = [
     "task=point_reach",

@@ -9,7 +9,7 @@ from omegaconf import OmegaConf
 from torchrl_ahrs.app.shared.settings import load_task_config
 from torchrl_ahrs.envs.registry import _BUILDERS, _MJX_BUILDERS, BACKENDS
 
-TASK_DIR = Path(__file__).resolve().parents[1] / "conf" / "task"
+TASK_DIR = Path(__file__).resolve().parents[2] / "conf" / "task"
 TASKS = sorted(p.stem for p in TASK_DIR.glob("*.yaml") if not p.stem.startswith("_"))
 BASES = sorted(p.stem for p in TASK_DIR.glob("_*.yaml"))
 ENVPOOL_FAMILY = {

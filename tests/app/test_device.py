@@ -2,14 +2,13 @@
 
 On this CPU-only machine ``trainer.device=cpu`` must be today's run exactly; the placement of every
 learner part is checked on torch's ``meta`` device, which has no memory, so a part left behind on the CPU
-shows up as a CPU tensor. (The MJX env's step on the device: ``tests/test_mjx.py``.)"""
+shows up as a CPU tensor. (The MJX env's step on the device: ``tests/envs/test_mjx.py``.)"""
 
 import json
 
 import pytest
 import torch
-from conftest import make_cfg
-from test_resume import differences
+from conftest import differences, make_cfg
 
 from torchrl_ahrs.app.shared.config import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory

@@ -14,7 +14,7 @@ from torchrl_ahrs.llm.task_text import AUX_MEANING, reward_code_blocks, source_o
 from torchrl_ahrs.rewards.auxiliary import shipped_aux_path
 from torchrl_ahrs.scheduling import build_scheduler
 
-CONF = Path(__file__).resolve().parents[1] / "conf"  # packaged as torchrl_ahrs.conf
+CONF = Path(__file__).resolve().parents[2] / "conf"  # packaged as torchrl_ahrs.conf
 
 
 class Estimator:

@@ -10,14 +10,13 @@ import subprocess
 import sys
 import time
 
-import numpy as np
 import pytest
 import torch
+from conftest import differences
 from hydra import compose, initialize_config_module
-from tensordict import TensorDictBase
 
-from torchrl_ahrs.app import checkpoint as checkpoint_module
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train import checkpoint as checkpoint_module
 from torchrl_ahrs.app.train.iteration import train
 from torchrl_ahrs.app.train.runs import read_scalar
 
@@ -27,29 +26,6 @@ TIMING = {"frames_per_second"}  # metrics that measure the machine, not the run
 def make_cfg(*overrides):
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides))
-
-
-def differences(a, b, path="checkpoint"):
-    """Where two checkpoints differ (bit for bit), as a list of paths into them."""
-    if isinstance(a, TensorDictBase) and isinstance(b, TensorDictBase):
-        keys = set(a.keys(True, True))
-        if keys != set(b.keys(True, True)):
-            return [f"{path}: keys {sorted(map(str, keys ^ set(b.keys(True, True))))}"]
-        return [f"{path}/{key}" for key in sorted(keys, key=str) if not torch.equal(a[key], b[key])]
-    if isinstance(a, dict) and isinstance(b, dict):
-        if set(a) != set(b):
-            return [f"{path}: keys {sorted(map(str, set(a) ^ set(b)))}"]
-        return [d for key in a for d in differences(a[key], b[key], f"{path}/{key}")]
-    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
-        if len(a) != len(b):
-            return [f"{path}: lengths {len(a)} != {len(b)}"]
-        return [d for i, (x, y) in enumerate(zip(a, b, strict=True)) for d in differences(x, y, f"{path}[{i}]")]
-    if isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor):
-        same = a.dtype == b.dtype and a.shape == b.shape and torch.equal(a, b)
-        return [] if same else [path]
-    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
-        return [] if a.dtype == b.dtype and np.array_equal(a, b) else [path]
-    return [] if type(a) is type(b) and a == b else [f"{path}: {a!r} != {b!r}"]
 
 
 def metric_rows(run):
