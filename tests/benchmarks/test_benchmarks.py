@@ -10,16 +10,21 @@ BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def run_script(name: str, argv: list[str], monkeypatch, capsys) -> str:
-    """Runs ``benchmarks/<name>`` as ``__main__`` in this process with ``argv``; returns its stdout."""
-    monkeypatch.setattr(sys, "argv", [name, *argv])
-    monkeypatch.syspath_prepend(str(BENCHMARKS))
-    runpy.run_path(str(BENCHMARKS / name), run_name="__main__")
+    """Runs ``benchmarks/<name>`` (``<kind>/<script>.py``) as ``__main__`` in this process with ``argv``, its
+    folder first on ``sys.path`` as when run as a script; returns its stdout."""
+    script = BENCHMARKS / name
+    monkeypatch.setattr(sys, "argv", [script.name, *argv])
+    monkeypatch.syspath_prepend(str(script.parent))
+    runpy.run_path(str(script), run_name="__main__")
     return capsys.readouterr().out
 
 
 def test_bench_gae_prints_both_times_and_the_ratio(monkeypatch, capsys):
     out = run_script(
-        "bench_gae.py", ["--sizes", "4x8", "--components", "3", "--hidden", "8", "--repeat", "2"], monkeypatch, capsys
+        "throughput/bench_gae.py",
+        ["--sizes", "4x8", "--components", "3", "--hidden", "8", "--repeat", "2"],
+        monkeypatch,
+        capsys,
     )
     rows = [line for line in out.splitlines() if line.strip().startswith("4x8")]
     assert [row.split()[1] for row in rows] == ["with", "precomputed"]
@@ -27,11 +32,11 @@ def test_bench_gae_prints_both_times_and_the_ratio(monkeypatch, capsys):
 
 
 def test_bench_gae_precomputed_values_give_the_same_advantage():
-    sys.path.insert(0, str(BENCHMARKS))
+    sys.path.insert(0, str(BENCHMARKS / "throughput"))
     try:
         from bench_gae import make_batches
     finally:
-        sys.path.remove(str(BENCHMARKS))
+        sys.path.remove(str(BENCHMARKS / "throughput"))
     import torch
     from tensordict.nn import TensorDictModule
 
@@ -48,11 +53,11 @@ def test_bench_gae_precomputed_values_give_the_same_advantage():
 
 
 def test_frames_per_second_counts_whole_iterations_after_warmup():
-    sys.path.insert(0, str(BENCHMARKS))
+    sys.path.insert(0, str(BENCHMARKS / "throughput"))
     try:
         from bench_pipeline import frames_per_second
     finally:
-        sys.path.remove(str(BENCHMARKS))
+        sys.path.remove(str(BENCHMARKS / "throughput"))
     # batches delivered at t = 0, 10 (slow warm-up), 11, 12, 13: three 1 s iterations of 50 frames
     assert frames_per_second([0.0, 10.0, 11.0, 12.0, 13.0], frames_per_batch=50, warmup=1) == 50.0
     with pytest.raises(ValueError):
@@ -64,7 +69,7 @@ def test_bench_pipeline_runs_ours_and_the_reference(monkeypatch, capsys):
     pytest.importorskip("gymnasium.envs.mujoco")
     argv = ["--frames", "16", "--num-envs", "2", "--rollout-steps", "8", "--hidden", "8", "--epochs", "1"]
     argv += ["--minibatches", "2", "--ref-workers", "2", "--methods", "ppo", "--threads", "1"]
-    out = run_script("bench_pipeline.py", argv, monkeypatch, capsys)
+    out = run_script("throughput/bench_pipeline.py", argv, monkeypatch, capsys)
     assert "reference (TorchRL sota PPO" in out
     assert "ratio ours/reference" in out
 
@@ -77,7 +82,7 @@ def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, caps
         "trainer.num_epochs=1",
         "model.hidden_sizes=[8]",
     ]
-    out = run_script("bench_floor.py", argv, monkeypatch, capsys)
+    out = run_script("throughput/bench_floor.py", argv, monkeypatch, capsys)
     ms = {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
     parts = ["collection (Collector, policy acting)", "advantages (x 1 epochs)", "loss steps (x 2)"]
     # the rows add up: floor = physics + loss steps, end to end = collection + advantages + loss steps + rest
@@ -89,29 +94,34 @@ def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, caps
 
 def test_bench_env_throughput_runs(monkeypatch, capsys):
     argv = ["--num-envs", "2", "--steps", "4", "--threads", "1", "--rounds", "1", "--tasks", "ant"]
-    out = run_script("bench_env_throughput.py", argv, monkeypatch, capsys)
+    out = run_script("throughput/bench_env_throughput.py", argv, monkeypatch, capsys)
     assert "ratio ours / EnvPool" in out and "task ant" in out
 
 
 def test_bench_envpool_tasks_runs(monkeypatch, capsys):
     out = run_script(
-        "bench_envpool_tasks.py", ["--tasks", "ant_v5", "--num-envs", "2", "--steps", "8"], monkeypatch, capsys
+        "throughput/bench_envpool_tasks.py",
+        ["--tasks", "ant_v5", "--num-envs", "2", "--steps", "8"],
+        monkeypatch,
+        capsys,
     )
     assert out.splitlines()[-1].split()[0] == "ant_v5"
 
 
 def test_bench_minibatch_overhead_prints_every_measurement(monkeypatch, capsys):
-    out = run_script("bench_minibatch_overhead.py", ["--minibatch", "512", "--steps", "2"], monkeypatch, capsys)
+    out = run_script(
+        "throughput/bench_minibatch_overhead.py", ["--minibatch", "512", "--steps", "2"], monkeypatch, capsys
+    )
     for name in ("loss_step functional=True", "loss_step functional=False", "serve_all_keys", "serve_loss_keys"):
         assert name in out
 
 
 def test_record_learning_run_writes_curve_evaluation_and_config(tmp_path, monkeypatch):
-    sys.path.insert(0, str(BENCHMARKS))
+    sys.path.insert(0, str(BENCHMARKS / "learning"))
     try:
         import record_learning_run
     finally:
-        sys.path.remove(str(BENCHMARKS))
+        sys.path.remove(str(BENCHMARKS / "learning"))
     run = tmp_path / "run"
     scalars = run / "metrics" / "scalars"
     (scalars / "return").mkdir(parents=True)
@@ -139,6 +149,8 @@ def test_bench_mjx_runs(monkeypatch, capsys):
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     argv = ["--task", "quadcopter", "--num-envs", "2", "--steps", "2", "--threads", "1"]
     rows = [
-        line for line in run_script("bench_mjx.py", argv, monkeypatch, capsys).splitlines() if line.startswith("| 2 ")
+        line
+        for line in run_script("throughput/bench_mjx.py", argv, monkeypatch, capsys).splitlines()
+        if line.startswith("| 2 ")
     ]
     assert [row.split("|")[2].strip() for row in rows] == ["cpu", "mjx"]

@@ -1,4 +1,4 @@
-"""``benchmarks/learning.py`` (return per minute, side by side with peers): its bookkeeping against hand-computed
+"""``benchmarks/learning/learning.py`` (return per minute, side by side with peers): its bookkeeping against hand-computed
 values, the rsl_rl adapter against the env it wraps, and one tiny end-to-end run."""
 
 from __future__ import annotations
@@ -13,16 +13,16 @@ from pathlib import Path
 import pytest
 import torch
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+LEARNING = Path(__file__).resolve().parents[2] / "benchmarks" / "learning"
 
 
 @pytest.fixture(scope="module")
 def learning():
-    sys.path.insert(0, str(BENCHMARKS))
+    sys.path.insert(0, str(LEARNING))
     try:
         import learning as module
     finally:
-        sys.path.remove(str(BENCHMARKS))
+        sys.path.remove(str(LEARNING))
     return module
 
 
@@ -52,11 +52,11 @@ def test_read_table_refuses_a_row_of_the_wrong_width(learning, tmp_path):
 
 def test_rsl_rl_adapter_reports_auto_reset_observations_time_outs_and_episode_returns():
     pytest.importorskip("rsl_rl")
-    sys.path.insert(0, str(BENCHMARKS))
+    sys.path.insert(0, str(LEARNING))
     try:
         from rsl_rl_adapter import RslRlVecEnv, StopTraining
     finally:
-        sys.path.remove(str(BENCHMARKS))
+        sys.path.remove(str(LEARNING))
     from torchrl_ahrs.app.shared.settings import load_task_config
     from torchrl_ahrs.envs.registry import make_env
 
@@ -90,7 +90,7 @@ def test_rsl_rl_adapter_reports_auto_reset_observations_time_outs_and_episode_re
 @pytest.mark.slow
 def test_learning_runs_ours_and_sb3_end_to_end_and_writes_a_table_that_parses(learning, tmp_path):
     # one 2 048-frame iteration per peer (frame cap), 30 s budget each; sb3 is skipped when not installed
-    command = [sys.executable, str(BENCHMARKS / "learning.py"), "--task", "ant_v5", "--minutes", "0.5", "--seeds", "1"]
+    command = [sys.executable, str(LEARNING / "learning.py"), "--task", "ant_v5", "--minutes", "0.5", "--seeds", "1"]
     command += ["--peers", "ours", "sb3", "--frames", "2048", "--out", str(tmp_path)]
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr

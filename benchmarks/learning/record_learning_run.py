@@ -2,8 +2,8 @@
 
 Usage::
 
-    python benchmarks/record_learning_run.py <run dir> <name> [--note "wall 6 min 21 s, load 0.4 -> 1.6"]
-    python benchmarks/record_learning_run.py <run dir> cassie_walk --out benchmarks/results/cassie_walk --checkpoint
+    python benchmarks/learning/record_learning_run.py <run dir> <name> [--note "wall 6 min 21 s, load 0.4 -> 1.6"]
+    python benchmarks/learning/record_learning_run.py <run dir> cassie_walk --out benchmarks/results/cassie_walk --checkpoint
 
 Writes (small, text only, committed with the repo):
 
@@ -23,7 +23,7 @@ import csv
 import shutil
 from pathlib import Path
 
-RESULTS = Path(__file__).resolve().parent / "results" / "learning"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "learning"
 SCALARS = {
     "return_total": "return/total.csv",
     "reward_per_step": "reward/total.csv",

@@ -4,7 +4,7 @@ Three numbers per task (steps/s = env steps summed over the N envs, uniform rand
 ``raw`` steps ``envpool.make(...)`` directly; ``rollout`` is ``make_env(task).rollout`` (EnvPoolEnv,
 reward components, episode-return tracking); ``collector`` is ``torchrl.collectors.Collector`` on it.
 
-Run: ``python benchmarks/bench_envpool_tasks.py --tasks ant_v5 dmc_walker_walk --num-envs 64``
+Run: ``python benchmarks/throughput/bench_envpool_tasks.py --tasks ant_v5 dmc_walker_walk --num-envs 64``
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Full comparisons (to be run; about ``minutes x seeds x peers`` of wall time plus evaluation)::
 
-    nice -n 10 python benchmarks/learning.py --task ant_v5 --minutes 10 --seeds 1 2 \\
+    nice -n 10 python benchmarks/learning/learning.py --task ant_v5 --minutes 10 --seeds 1 2 \\
         --peers ours torchrl sb3 --out benchmarks/results/learning_peers/ant_v5
-    nice -n 10 python benchmarks/learning.py --task cassie --minutes 20 --seeds 1 2 \\
+    nice -n 10 python benchmarks/learning/learning.py --task cassie --minutes 20 --seeds 1 2 \\
         --peers ours rsl_rl --out benchmarks/results/learning_peers/cassie
 
 Peers (``pip install -e ".[bench]"``; a peer whose package is absent is skipped, and says so):

@@ -1,6 +1,6 @@
 """The peers of ``learning.py``, one training run each, started by it as a subprocess::
 
-    python benchmarks/learning_peers.py <torchrl|sb3|rsl_rl> --task <task> --seed <s> --seconds <budget>
+    python benchmarks/learning/learning_peers.py <torchrl|sb3|rsl_rl> --task <task> --seed <s> --seconds <budget>
         [--frames <cap>] --run-dir <dir> --t0 <epoch seconds at launch> [--torch-threads 1]
 
 A run trains until the wall-clock budget (counted from ``--t0``, the moment ``learning.py`` launched the

@@ -12,7 +12,7 @@ reads ``("next", "reward")`` ``[N, T, 1]`` and a one-output critic of the same w
 Each timing is the median of ``--repeat`` calls after ``--warmup`` untimed ones, the two estimators
 alternating call by call.
 
-Run: ``python benchmarks/bench_gae.py --sizes 64x64 256x128 --components 16 --repeat 30``
+Run: ``python benchmarks/throughput/bench_gae.py --sizes 64x64 256x128 --components 16 --repeat 30``
 """
 
 from __future__ import annotations

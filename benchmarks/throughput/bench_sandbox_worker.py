@@ -12,7 +12,7 @@ tensors cross in shared memory, one small JSON message each way), called once pe
 ``overhead = (per-call worker - per-call in-process) / (num_envs / frames_per_second in-process)``: the added
 time per env step over the time one env step of training takes (collection and its share of the update).
 
-    python benchmarks/bench_sandbox_worker.py --tasks quadcopter cassie --iterations 4 --repeat 2
+    python benchmarks/throughput/bench_sandbox_worker.py --tasks quadcopter cassie --iterations 4 --repeat 2
 """
 
 from __future__ import annotations

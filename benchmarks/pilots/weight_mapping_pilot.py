@@ -4,7 +4,7 @@ effective shares without hurting learning. Reads run directories ``<grid>/<varia
 variant: final return and normalised AUC (mean over seeds), the shares' movement between decisions (max and
 mean over components, mean over seeds) and their seed-to-seed noise.
 
-    python benchmarks/weight_mapping_pilot.py /tmp/ahrs_meas/grid
+    python benchmarks/pilots/weight_mapping_pilot.py /tmp/ahrs_meas/grid
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ For each N and backend (``task.backend=cpu`` / ``mjx``) on whatever JAX device i
 the MJX env is built on it, the CPU backend's outputs are moved to it each step, and training runs its learner
 on it (a CPU backend then hands each step's data over through the collector).
 
-Run (CPU, brief): ``python benchmarks/bench_mjx.py --task cassie --num-envs 64 1024 4096 --steps 5``
+Run (CPU, brief): ``python benchmarks/throughput/bench_mjx.py --task cassie --num-envs 64 1024 4096 --steps 5``
 GPU: see benchmarks/RESULTS.md (``JAX_PLATFORMS=cuda``, ``--device cuda``).
 """
 

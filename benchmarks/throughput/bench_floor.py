@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_floor.py --task cassie [--method ppo] [--batches 10] [--warmup 2] [override ...]
+    python benchmarks/throughput/bench_floor.py --task cassie [--method ppo] [--batches 10] [--warmup 2] [override ...]
 
 Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method>`` does (the task's preset
 included; extra Hydra overrides follow the flags), then measures in this one process, with the run's torch

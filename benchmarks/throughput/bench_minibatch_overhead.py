@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_minibatch_overhead.py [--minibatch 64] [--steps 200]
+    python benchmarks/throughput/bench_minibatch_overhead.py [--minibatch 64] [--steps 200]
 
 Builds the ant_v5 actor/critic/loss exactly as ``train.py`` does, collects one real batch (64 envs x
 32 steps), and times, per minibatch, with one torch thread:

@@ -27,7 +27,7 @@ each worker process steps ``N / workers`` gymnasium envs in a ``SerialEnv`` (Tor
 env): 64 worker processes (each a Python interpreter with torch, ~0.3 GB) would crowd a 2-core
 machine; ``--ref-workers 64`` gives the one-process-per-env form.
 
-Run: ``python benchmarks/bench_pipeline.py --frames 32768 --num-envs 64 --repeat 3``
+Run: ``python benchmarks/throughput/bench_pipeline.py --frames 32768 --num-envs 64 --repeat 3``
 """
 
 from __future__ import annotations
@@ -35,13 +35,17 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_module
-from reference_ppo import ReferenceConfig, ReferencePPO
+
+# reference_ppo.py is shared with the learning benchmark (learning/learning_peers.py) and lives there
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
+from reference_ppo import ReferenceConfig, ReferencePPO  # noqa: E402
 
 
 def frames_per_second(batch_times: list[float], frames_per_batch: int, warmup: int) -> float:

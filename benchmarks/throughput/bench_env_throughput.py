@@ -5,7 +5,7 @@ forward / ctrl / contact / survive reward terms, the 105-dim observation (qpos[2
 external contact forces), health-based termination. Both run N envs with the same thread count and
 uniform random actions; the clock covers ``steps`` batched steps after a warm-up.
 
-Run: ``python benchmarks/bench_env_throughput.py --num-envs 64 --steps 500 --threads 2``
+Run: ``python benchmarks/throughput/bench_env_throughput.py --num-envs 64 --steps 500 --threads 2``
 """
 
 from __future__ import annotations
