@@ -1,4 +1,4 @@
-"""The README's composition example, verbatim (``tests/test_examples.py`` keeps the two identical).
+"""The README's composition example, verbatim (``tests/system/test_examples.py`` keeps the two identical).
 
 Split-reward MuJoCo task, TorchRL's ``Collector``, a ``HybridClipPPOLoss`` that computes its own
 advantage, and the bandit rescheduling the weights; run with ``python examples/compose.py``.

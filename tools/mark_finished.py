@@ -14,9 +14,9 @@ from pathlib import Path
 
 import yaml
 
-from torchrl_ahrs.app.checkpoint import collected_frames, mark_finished
-from torchrl_ahrs.app.run_dir import RunDirectory
-from torchrl_ahrs.app.runs import find_run_dirs
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.checkpoint import collected_frames, mark_finished
+from torchrl_ahrs.app.train.runs import find_run_dirs
 
 
 def main(roots: list[str]) -> int:

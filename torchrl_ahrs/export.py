@@ -1,6 +1,6 @@
 """``python -m torchrl_ahrs.export run=<run dir>``: the trained policy as TorchScript and ONNX files.
 
-The export is :mod:`torchrl_ahrs.app.export`; this entry point composes ``conf/export.yaml`` and turns errors
+The export is :mod:`torchrl_ahrs.app.evaluate.export`; this entry point composes ``conf/export.yaml`` and turns errors
 into one line on stderr with exit status 2 (a run that has no policy, a format that cannot be written here).
 
 Example (after ``python -m torchrl_ahrs.train task=quadcopter hydra.run.dir=runs/quad``)::
@@ -11,13 +11,13 @@ Example (after ``python -m torchrl_ahrs.train task=quadcopter hydra.run.dir=runs
 
 from __future__ import annotations
 
-from torchrl_ahrs.app.cli import hydra_command
-from torchrl_ahrs.app.export import ExportError, export, run
-from torchrl_ahrs.app.policy import EvaluationError
+from torchrl_ahrs.app.evaluate.export import ExportError, export, run
+from torchrl_ahrs.app.evaluate.policy import EvaluationError
+from torchrl_ahrs.app.shared.cli import hydra_command
 
 __all__ = ["export", "main"]
 
-main = hydra_command("export", run, {EvaluationError: (2, ""), ExportError: (2, "")})
+main = hydra_command("export", "export", run, {EvaluationError: (2, "{}"), ExportError: (2, "{}")})
 
 if __name__ == "__main__":
     main()

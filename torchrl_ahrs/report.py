@@ -1,8 +1,12 @@
 """Paper-style report of a sweep: ``python -m torchrl_ahrs.report <sweep dir> [<sweep dir> ...] [--out DIR]``.
 
-The report (tables, figures, ``report.md``) is :mod:`torchrl_ahrs.app.report`; this entry point parses
+The report (tables, figures, ``report.md``) is :mod:`torchrl_ahrs.app.report.report`; this entry point parses
 the command line, refuses a sweep directory that does not exist (one line, exit status 2) and prints
 which runs are not ok.
+
+argparse, not :func:`~torchrl_ahrs.app.shared.cli.hydra_command` (the other commands' one declaration):
+the command takes sweep directories, not a config tree, and a Hydra command would create an ``outputs/``
+run directory of its own for every report.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from torchrl_ahrs.app.report import write_report
+from torchrl_ahrs.app.report.report import write_report
 
 __all__ = ["main", "write_report"]
 

@@ -1,9 +1,8 @@
 """Sweeps over methods x tasks x seeds: ``python -m torchrl_ahrs.sweep +sweep=<profile> [overrides]``.
 
-A thin front to ``torchrl_ahrs.train``'s Hydra entry point that always runs in ``--multirun`` mode. It
-exists because the joblib launcher pickles the task function into fresh worker processes: run as
-``python -m torchrl_ahrs.train`` that function lives in ``__main__`` and drags unpicklable module state
-along; imported from here it is pickled by reference.
+The train command (:mod:`torchrl_ahrs.app.train.command`) declared in ``--multirun`` mode: the same
+run, checks and errors as ``python -m torchrl_ahrs.train -m``, and the same job name (each run's log is
+``train.log``).
 
 Profiles (``conf/sweep/``, packaged as ``torchrl_ahrs.conf``):
 
@@ -22,25 +21,19 @@ Example::
     python -m torchrl_ahrs.sweep +sweep=smoke hydra.sweep.dir=outputs/sweeps/smoke
 """
 
+# ruff: noqa: E402  (the GL backend must be chosen before the imports below load mujoco)
 from __future__ import annotations
 
-import sys
+from torchrl_ahrs.evaluation.render import select_gl_backend
 
-from torchrl_ahrs.train import main as train_main
+select_gl_backend()  # MuJoCo reads MUJOCO_GL once, at import: choose offscreen GL before anything imports it
 
+from torchrl_ahrs.app.shared.cli import hydra_command
+from torchrl_ahrs.app.train.command import ERRORS, check_arguments, run
 
-def run(argv: list[str]) -> None:
-    """Runs ``torchrl_ahrs.train.main`` with ``argv`` as Hydra overrides, in multirun mode."""
-    if "--multirun" not in argv and "-m" not in argv:
-        argv = ["--multirun", *argv]
-    sys.argv = [sys.argv[0], *argv]
-    train_main()
+__all__ = ["main"]
 
-
-def main() -> None:
-    """The console script ``torchrl-ahrs-sweep``: :func:`run` on the command line's arguments."""
-    run(sys.argv[1:])
-
+main = hydra_command("train", "config", run, ERRORS, check_arguments=check_arguments, multirun=True)
 
 if __name__ == "__main__":
     main()

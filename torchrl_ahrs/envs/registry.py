@@ -1,7 +1,7 @@
 """Task registry: a task name → a batched TorchRL environment whose reward is a component tree.
 
 A task is a YAML file in ``conf/task/`` (shipped inside the package as ``torchrl_ahrs.conf``; composed by
-``torchrl_ahrs.app.settings.load_task_config``) and a builder function registered here under the same
+``torchrl_ahrs.app.shared.settings.load_task_config``) and a builder function registered here under the same
 name. A builder takes the task config, the number of environments and a seed, and returns an ``EnvBase``
 with batch size ``[num_envs]`` that writes
 ``("next", "reward", c)`` for each ``c`` in ``task.components`` and ``("next", "reward", "total")``.
@@ -119,7 +119,7 @@ def make_env(
         (:mod:`torchrl_ahrs.envs.common.snapshot`).
 
     Example:
-        >>> from torchrl_ahrs.app.settings import load_task_config
+        >>> from torchrl_ahrs.app.shared.settings import load_task_config
         >>> env = make_env(load_task_config("ant_v5"), num_envs=2)
         >>> env.rollout(3)["next", "reward", "forward"].shape
         torch.Size([2, 3, 1])

@@ -1,7 +1,7 @@
 """One LLM client over litellm: timeouts, retries with backoff, a JSONL call log, a disk cache, replay.
 
 Every :meth:`LLMClient.complete` call writes one JSON line to the calls log its caller names (a run's
-``llm_calls.jsonl``, see :mod:`torchrl_ahrs.app.run_dir`):
+``llm_calls.jsonl``, see :mod:`torchrl_ahrs.app.shared.run_dir`):
 time, purpose, model, prompt hash, prompt (the messages), response, parsed decision, parse error,
 latency, tokens, cost, attempts, error, and whether the answer came from the cache or a replay. The
 API key comes from the environment variable named by ``llm.api_key_env`` (preferred) or from
@@ -13,7 +13,7 @@ API key comes from the environment variable named by ``llm.api_key_env`` (prefer
   selector falls back) instead of stalling training. Bad requests (e.g. a prompt over the model's
   context window), authentication errors and a missing key (which litellm reports as a server error,
   :func:`is_missing_credentials`) are not retried; ``train`` refuses a missing key at start
-  (:mod:`torchrl_ahrs.app.preflight`, ``litellm.validate_environment``).
+  (:mod:`torchrl_ahrs.app.train.preflight`, ``litellm.validate_environment``).
 
   Why these retries are ours and not litellm's ``num_retries`` (checked against litellm 1.102): litellm
   retries inside one ``completion`` call with its own (or the OpenAI SDK's) backoff, so (1) the decision's

@@ -1,5 +1,5 @@
 """What the generator commands (``generate_rules``, ``generate_aux``) share: the check that they have an LLM,
-the code blocks of an answer, and where they write what the LLM produced (``torchrl_ahrs.app.settings`` reads
+the code blocks of an answer, and where they write what the LLM produced (``torchrl_ahrs.app.shared.settings`` reads
 these settings from the composed config)."""
 
 from __future__ import annotations

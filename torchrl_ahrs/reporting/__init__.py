@@ -1,4 +1,4 @@
-"""Sweep reports: from the runs of a sweep (read by :mod:`torchrl_ahrs.app.runs`), compute the
+"""Sweep reports: from the runs of a sweep (read by :mod:`torchrl_ahrs.app.train.runs`), compute the
 paper-style tables (final return over seeds, IQM and intervals from rliable, probabilities of improvement,
 change against PPO) and draw the figures.
 

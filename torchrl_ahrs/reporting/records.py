@@ -1,6 +1,6 @@
 """One run of a sweep as the report sees it: a plain record, with the paper's method order.
 
-Reading run directories into these records is :mod:`torchrl_ahrs.app.runs`.
+Reading run directories into these records is :mod:`torchrl_ahrs.app.train.runs`.
 """
 
 from __future__ import annotations

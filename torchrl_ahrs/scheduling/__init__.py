@@ -1,7 +1,7 @@
 """AHRS scheduling: rule repositories, return statistics, selectors and the RuleScheduler hook.
 
 ``build_scheduler(settings, estimator, components, decisions_path, logger, llm_calls_path)`` turns typed
-:class:`SchedulerSettings` (``scheduling/settings.py``; ``torchrl_ahrs.app.settings.scheduler_settings``
+:class:`SchedulerSettings` (``scheduling/settings.py``; ``torchrl_ahrs.app.shared.settings.scheduler_settings``
 translates the Hydra config) into a ready :class:`RuleScheduler`:
 
 * ``settings.selection.selector``: ``constant`` | ``fixed`` (with ``selection.rule``) | ``random`` |

@@ -1,6 +1,6 @@
 """The schedule's settings as typed records whose defaults are written once: the Python API and the shipped
-config agree (``tests/test_defaults.py`` compares them key by key). The library never reads the Hydra tree;
-``torchrl_ahrs.app.settings`` translates a composed config into these records.
+config agree (``tests/app/test_defaults.py`` compares them key by key). The library never reads the Hydra tree;
+``torchrl_ahrs.app.shared.settings`` translates a composed config into these records.
 
 * :class:`ScheduleSettings`: the ``scheduler`` section (interval, mapping, history, repository file).
 * :class:`BanditSettings`: ``llm.bandit``, the discounted UCB that stands in for an LLM under ``llm=offline``.

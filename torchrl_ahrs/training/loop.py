@@ -13,7 +13,7 @@ In the order it runs (the section comments in :func:`learn` carry these numbers)
     6. log           every scalar of the iteration once, at step = frames collected; console line; video clip
     7. checkpoint    the run's state registry, every `interval` iterations and after the last
 
-The parts are built by :mod:`torchrl_ahrs.app.iteration` from the Hydra config (or by hand: see
+The parts are built by :mod:`torchrl_ahrs.app.train.iteration` from the Hydra config (or by hand: see
 :class:`TrainingRun`); this module never reads configuration. The loop is TorchRL's pieces composed as
 TorchRL's ``sota-implementations/ppo`` scripts compose them: a ``Collector``, a loss module, a value
 estimator, ``torch.optim`` and a TorchRL ``Logger``.

@@ -55,7 +55,7 @@ Hooks (override in the subclass):
 * ``after_physics_step()`` — optional bookkeeping between physics and rewards.
 * ``episode_state`` (class attribute) — names of the per-env attributes a task carries from one step to
   the next (targets, commands, previous potentials, history buffers): they are part of the env's
-  snapshot, so leave none out (``tests/test_env_snapshot.py`` checks every task).
+  snapshot, so leave none out (``tests/envs/test_env_snapshot.py`` checks every task).
 * ``observation() -> Tensor [N, obs_dim]`` (cast to float32 by the base); required.
 * ``reward_terms() -> dict[str, Tensor [N]]``; required. Names are fixed by ``reward_term_names``.
 * ``total_reward(terms) -> Tensor [N]`` — default Σ terms (override for the task's own formula).

@@ -92,7 +92,7 @@ class BaseEnvSnapshot(Transform):
 
     Example:
         >>> from torchrl_ahrs.envs import make_env
-        >>> from torchrl_ahrs.app.settings import load_task_config
+        >>> from torchrl_ahrs.app.shared.settings import load_task_config
         >>> env = make_env(load_task_config("point_reach"), num_envs=2, seed=0)
         >>> _ = env.rollout(3, break_when_any_done=False)
         >>> twin = make_env(load_task_config("point_reach"), num_envs=2, seed=1)

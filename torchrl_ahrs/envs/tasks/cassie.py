@@ -28,7 +28,7 @@ Differences from legged_gym: no observation noise, no heading command (ω_yaw is
 additive joint noise at reset instead of scaling, one contact threshold (1 N) for air time and no_fly.
 
 Example:
-    >>> from torchrl_ahrs.app.settings import load_task_config
+    >>> from torchrl_ahrs.app.shared.settings import load_task_config
     >>> env = make_cassie(load_task_config("cassie"), num_envs=2, seed=0)
     >>> td = env.rollout(3)
     >>> td["next", "reward", "tracking_lin_vel"].shape, td["observation"].shape

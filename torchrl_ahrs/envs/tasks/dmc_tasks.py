@@ -101,7 +101,7 @@ def make_dmc_task(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device:
     """EnvPool dm_control task whose components sum exactly to the native reward.
 
     Example:
-        >>> from torchrl_ahrs.app.settings import load_task_config
+        >>> from torchrl_ahrs.app.shared.settings import load_task_config
         >>> env = make_dmc_task(load_task_config("dmc_quadruped_run"), num_envs=2, seed=0, device="cpu")
         >>> sorted(env.rollout(2)["next", "reward"].keys())
         ['move', 'total', 'upright']

@@ -76,7 +76,7 @@ def make_ant_v5(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: s
     unchanged (EnvPool's own ``use_contact_force=False`` would drop the contact cost too).
 
     Example:
-        >>> from torchrl_ahrs.app.settings import load_task_config
+        >>> from torchrl_ahrs.app.shared.settings import load_task_config
         >>> env = make_ant_v5(load_task_config("ant_v5"), num_envs=2, seed=0, device="cpu")
         >>> sorted(env.rollout(2)["next", "reward"].keys())
         ['contact', 'ctrl', 'forward', 'survive', 'total']

@@ -7,7 +7,7 @@ solver and iterations); ``task.mjx_x64=true`` runs MJX in float64.
 
 Example:
     >>> import pytest; _ = pytest.importorskip("jax", reason="the [mjx] extra is not installed")
-    >>> from torchrl_ahrs.app.settings import load_task_config
+    >>> from torchrl_ahrs.app.shared.settings import load_task_config
     >>> env = make_mjx_task(load_task_config("quadcopter", ["task.backend=mjx"]), num_envs=2)
     >>> env.rollout(2)["next", "reward", "pos_up"].shape
     torch.Size([2, 2, 1])

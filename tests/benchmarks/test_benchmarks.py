@@ -1,0 +1,156 @@
+"""The benchmark scripts still run end to end (tiny arguments, no timing assertions)."""
+
+import runpy
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def run_script(name: str, argv: list[str], monkeypatch, capsys) -> str:
+    """Runs ``benchmarks/<name>`` (``<kind>/<script>.py``) as ``__main__`` in this process with ``argv``, its
+    folder first on ``sys.path`` as when run as a script; returns its stdout."""
+    script = BENCHMARKS / name
+    monkeypatch.setattr(sys, "argv", [script.name, *argv])
+    monkeypatch.syspath_prepend(str(script.parent))
+    runpy.run_path(str(script), run_name="__main__")
+    return capsys.readouterr().out
+
+
+def test_bench_gae_prints_both_times_and_the_ratio(monkeypatch, capsys):
+    out = run_script(
+        "throughput/bench_gae.py",
+        ["--sizes", "4x8", "--components", "3", "--hidden", "8", "--repeat", "2"],
+        monkeypatch,
+        capsys,
+    )
+    rows = [line for line in out.splitlines() if line.strip().startswith("4x8")]
+    assert [row.split()[1] for row in rows] == ["with", "precomputed"]
+    assert all(row.endswith("x") for row in rows)
+
+
+def test_bench_gae_precomputed_values_give_the_same_advantage():
+    sys.path.insert(0, str(BENCHMARKS / "throughput"))
+    try:
+        from bench_gae import make_batches
+    finally:
+        sys.path.remove(str(BENCHMARKS / "throughput"))
+    import torch
+    from tensordict.nn import TensorDictModule
+
+    from torchrl_ahrs.value import MultiHeadCritic, WeightedMultiGAE
+
+    multi, single, components = make_batches(3, 7, 4, 5)
+    # the one-reward batch carries the sum of the component rewards (what TorchRL's GAE would see)
+    stacked = torch.cat([multi["next", "reward", name] for name in components], -1)
+    torch.testing.assert_close(single["next", "reward"], stacked.sum(-1, keepdim=True))
+    critic = TensorDictModule(MultiHeadCritic(5, 4, [8]), in_keys=["observation"], out_keys=["state_value"])
+    with_critic = WeightedMultiGAE(components, gamma=0.9, lmbda=0.8, value_network=critic)(multi)["advantage"].clone()
+    precomputed = WeightedMultiGAE(components, gamma=0.9, lmbda=0.8, value_network=None)(multi)["advantage"]
+    torch.testing.assert_close(precomputed, with_critic)
+
+
+def test_frames_per_second_counts_whole_iterations_after_warmup():
+    sys.path.insert(0, str(BENCHMARKS / "throughput"))
+    try:
+        from bench_pipeline import frames_per_second
+    finally:
+        sys.path.remove(str(BENCHMARKS / "throughput"))
+    # batches delivered at t = 0, 10 (slow warm-up), 11, 12, 13: three 1 s iterations of 50 frames
+    assert frames_per_second([0.0, 10.0, 11.0, 12.0, 13.0], frames_per_batch=50, warmup=1) == 50.0
+    with pytest.raises(ValueError):
+        frames_per_second([0.0, 1.0], frames_per_batch=50, warmup=1)
+
+
+@pytest.mark.slow
+def test_bench_pipeline_runs_ours_and_the_reference(monkeypatch, capsys):
+    pytest.importorskip("gymnasium.envs.mujoco")
+    argv = ["--frames", "16", "--num-envs", "2", "--rollout-steps", "8", "--hidden", "8", "--epochs", "1"]
+    argv += ["--minibatches", "2", "--ref-workers", "2", "--methods", "ppo", "--threads", "1"]
+    out = run_script("throughput/bench_pipeline.py", argv, monkeypatch, capsys)
+    assert "reference (TorchRL sota PPO" in out
+    assert "ratio ours/reference" in out
+
+
+def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, capsys):
+    argv = ["--task", "ant_v5", "--batches", "1", "--warmup", "1", "--repeats", "1", "trainer.num_envs=2"]
+    argv += [
+        "trainer.frames_per_batch=16",
+        "trainer.mini_batch_size=8",
+        "trainer.num_epochs=1",
+        "model.hidden_sizes=[8]",
+    ]
+    out = run_script("throughput/bench_floor.py", argv, monkeypatch, capsys)
+    ms = {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
+    parts = ["collection (Collector, policy acting)", "advantages (x 1 epochs)", "loss steps (x 2)"]
+    # the rows add up: floor = physics + loss steps, end to end = collection + advantages + loss steps + rest
+    assert ms["floor = physics + loss steps"] == pytest.approx(ms["physics (random actions)"] + ms[parts[2]], abs=0.2)
+    total = sum(ms[name] for name in parts) + ms["rest (hooks, minibatches, logging)"]
+    assert ms["end to end (train)"] == pytest.approx(total, abs=0.3)
+    assert all(value > 0 for name, value in ms.items() if not name.startswith("rest"))
+
+
+def test_bench_env_throughput_runs(monkeypatch, capsys):
+    argv = ["--num-envs", "2", "--steps", "4", "--threads", "1", "--rounds", "1", "--tasks", "ant"]
+    out = run_script("throughput/bench_env_throughput.py", argv, monkeypatch, capsys)
+    assert "ratio ours / EnvPool" in out and "task ant" in out
+
+
+def test_bench_envpool_tasks_runs(monkeypatch, capsys):
+    out = run_script(
+        "throughput/bench_envpool_tasks.py",
+        ["--tasks", "ant_v5", "--num-envs", "2", "--steps", "8"],
+        monkeypatch,
+        capsys,
+    )
+    assert out.splitlines()[-1].split()[0] == "ant_v5"
+
+
+def test_bench_minibatch_overhead_prints_every_measurement(monkeypatch, capsys):
+    out = run_script(
+        "throughput/bench_minibatch_overhead.py", ["--minibatch", "512", "--steps", "2"], monkeypatch, capsys
+    )
+    for name in ("loss_step functional=True", "loss_step functional=False", "serve_all_keys", "serve_loss_keys"):
+        assert name in out
+
+
+def test_record_learning_run_writes_curve_evaluation_and_config(tmp_path, monkeypatch):
+    sys.path.insert(0, str(BENCHMARKS / "learning"))
+    try:
+        import record_learning_run
+    finally:
+        sys.path.remove(str(BENCHMARKS / "learning"))
+    run = tmp_path / "run"
+    scalars = run / "metrics" / "scalars"
+    (scalars / "return").mkdir(parents=True)
+    (scalars / "reward").mkdir()
+    (scalars / "return" / "total.csv").write_text("2048,-5.0\n6144,12.5\n")  # no episode ended at 4096
+    (scalars / "reward" / "total.csv").write_text("2048,0.1\n4096,0.2\n6144,0.3\n")
+    (run / "evaluation.json").write_text('{"return": 1}')
+    (run / "config.yaml").write_text("seed: 0\n")
+    monkeypatch.setattr(record_learning_run, "RESULTS", tmp_path / "results")
+    out = record_learning_run.record(run, "demo", note="wall 1 s")
+    rows = (out / "curve.csv").read_text().splitlines()
+    assert rows[0].startswith("frames,return_total,reward_per_step")
+    assert rows[1:] == ["2048,-5.0,0.1,,", "4096,,0.2,,", "6144,12.5,0.3,,"]
+    assert (out / "evaluation.json").read_text() == '{"return": 1}'
+    assert "wall 1 s" in (out / "timing.txt").read_text()
+    assert not (out / "checkpoint.pt").exists()
+    (run / "checkpoint.pt").write_bytes(b"state")
+    walk = record_learning_run.record(run, "demo", out=tmp_path / "walk", checkpoint=True)
+    assert walk == tmp_path / "walk" and (walk / "checkpoint.pt").read_bytes() == b"state"
+    assert (walk / "curve.csv").read_text() == (out / "curve.csv").read_text()
+
+
+def test_bench_mjx_runs(monkeypatch, capsys):
+    pytest.importorskip("mujoco.mjx", reason='JAX / mujoco-mjx absent: pip install -e ".[mjx]" runs this test')
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    argv = ["--task", "quadcopter", "--num-envs", "2", "--steps", "2", "--threads", "1"]
+    rows = [
+        line
+        for line in run_script("throughput/bench_mjx.py", argv, monkeypatch, capsys).splitlines()
+        if line.startswith("| 2 ")
+    ]
+    assert [row.split("|")[2].strip() for row in rows] == ["cpu", "mjx"]

@@ -1,0 +1,113 @@
+"""``benchmarks/learning/learning.py`` (return per minute, side by side with peers): its bookkeeping against hand-computed
+values, the rsl_rl adapter against the env it wraps, and one tiny end-to-end run."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+LEARNING = Path(__file__).resolve().parents[2] / "benchmarks" / "learning"
+
+
+@pytest.fixture(scope="module")
+def learning():
+    sys.path.insert(0, str(LEARNING))
+    try:
+        import learning as module
+    finally:
+        sys.path.remove(str(LEARNING))
+    return module
+
+
+def test_smoothed_return_is_the_episode_weighted_mean_over_the_window(learning):
+    curve = [(1.0, 100, 10.0, 1), (2.0, 200, math.nan, 0), (3.0, 300, 40.0, 3), (4.0, 400, 0.0, 1)]
+    values = learning.smoothed(curve, window_frames=250)
+    # rows 1-2: only the first episode; row 3: (10 + 3 * 40) / 4; row 4 drops frame 100: (3 * 40 + 0) / 4
+    assert values[:1] == [10.0] and values[1] == 10.0
+    assert values[2] == pytest.approx(32.5) and values[3] == pytest.approx(30.0)
+    assert math.isnan(learning.smoothed([(1.0, 100, math.nan, 0)], 250)[0])
+
+
+def test_time_to_threshold_is_the_first_row_reaching_it(learning):
+    curve = [(1.0, 100, 0.0, 1), (2.0, 200, 0.0, 1), (3.0, 300, 0.0, 1)]
+    assert learning.time_to(curve, [5.0, 12.0, 8.0], 10.0) == (2.0, 200)
+    assert learning.time_to(curve, [5.0, 12.0, 8.0], 12.5) is None
+
+
+def test_read_table_refuses_a_row_of_the_wrong_width(learning, tmp_path):
+    path = tmp_path / "table.md"
+    path.write_text("| peer | seeds |\n|---|---|\n| ours | 1 of 1 |\n")
+    assert learning.read_table(path) == [{"peer": "ours", "seeds": "1 of 1"}]
+    path.write_text("| peer | seeds |\n|---|---|\n| ours | 1 of 1 | extra |\n")
+    with pytest.raises(ValueError, match="3 cells, header 2"):
+        learning.read_table(path)
+
+
+def test_rsl_rl_adapter_reports_auto_reset_observations_time_outs_and_episode_returns():
+    pytest.importorskip("rsl_rl")
+    sys.path.insert(0, str(LEARNING))
+    try:
+        from rsl_rl_adapter import RslRlVecEnv, StopTraining
+    finally:
+        sys.path.remove(str(LEARNING))
+    from torchrl_ahrs.app.shared.settings import load_task_config
+    from torchrl_ahrs.envs.registry import make_env
+
+    rollouts = []
+    env = make_env(load_task_config("point_reach"), 3, seed=0, components=["total"])
+    vec = RslRlVecEnv(env, steps_per_rollout=50, on_rollout=lambda wall, frames, r: rollouts.append((frames, r)))
+    # the oracle: the same env stepped by hand, with the same actions
+    oracle = make_env(load_task_config("point_reach"), 3, seed=0, components=["total"])
+    td = oracle.reset()
+    torch.testing.assert_close(vec.get_observations()["policy"], td["observation"].float())
+    generator = torch.Generator().manual_seed(0)
+    total = torch.zeros(3)
+    for step in range(vec.max_episode_length):
+        action = torch.rand(3, vec.num_actions, generator=generator) * 2 - 1
+        obs, reward, dones, extras = vec.step(action)
+        stepped, td = oracle.step_and_maybe_reset(td.set("action", action))
+        total += stepped["next", "reward", "total"].reshape(3)
+        torch.testing.assert_close(obs["policy"], td["observation"].float())  # after the reset of ended envs
+        torch.testing.assert_close(reward, stepped["next", "reward", "total"].reshape(3).float())
+        last = step == vec.max_episode_length - 1
+        assert dones.tolist() == [int(last)] * 3  # point_reach only ends by its time limit
+        assert extras["time_outs"].tolist() == [float(last)] * 3
+    assert [frames for frames, _ in rollouts] == [150 * (i + 1) for i in range(vec.max_episode_length // 50)]
+    torch.testing.assert_close(torch.tensor(rollouts[-1][1]), total)  # the returns of the episodes that ended
+    assert vec.episode_length_buf.tolist() == [0, 0, 0]
+    vec.should_stop = lambda: True
+    with pytest.raises(StopTraining):
+        vec.step(torch.zeros(3, vec.num_actions))
+
+
+@pytest.mark.slow
+def test_learning_runs_ours_and_sb3_end_to_end_and_writes_a_table_that_parses(learning, tmp_path):
+    # one 2 048-frame iteration per peer (frame cap), 30 s budget each; sb3 is skipped when not installed
+    command = [sys.executable, str(LEARNING / "learning.py"), "--task", "ant_v5", "--minutes", "0.5", "--seeds", "1"]
+    command += ["--peers", "ours", "sb3", "--frames", "2048", "--out", str(tmp_path)]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    for name in ("curves.csv", "summary.csv", "table.md", "return_vs_time.png", "return_vs_frames.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert (tmp_path / "return_vs_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = {row["peer"]: row for row in learning.read_table(tmp_path / "table.md")}
+    assert list(rows) == ["ours", "sb3"]
+    assert rows["ours"]["seeds"] == "1 of 1" and rows["ours"]["frames trained"] == "2 048"
+    float(rows["ours"]["evaluated return"].split(" ± ")[0].replace(" ", ""))
+    if importlib.util.find_spec("stable_baselines3") is None:
+        assert rows["sb3"]["seeds"] == "skipped: stable_baselines3 not installed"
+    else:
+        assert rows["sb3"]["seeds"] == "1 of 1" and rows["sb3"]["frames trained"] == "2 048"
+    with (tmp_path / "summary.csv").open() as handle:
+        summary = list(csv.DictReader(handle))
+    assert {row["peer"] for row in summary} <= {"ours", "sb3"} and all(row["status"] == "ok" for row in summary)
+    for row in summary:
+        assert len(row["load_start"].split()) == 3 and len(row["load_end"].split()) == 3  # os.getloadavg()
+        assert math.isfinite(float(row["eval_return"])) and row["stop"] == "frames"

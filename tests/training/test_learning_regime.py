@@ -1,0 +1,81 @@
+"""The pieces of the PPO regime: the adaptive-KL learning rate, minibatches, GAE's bootstrap on truncated
+episodes and the Cassie preset's PPO numbers. (The loss: ``test_loss.py``; value normalisation:
+``test_value_norm.py``.)
+
+Oracles: hand-made one-step episodes whose advantages are known in closed form (the bootstrap), legged_gym's
+published numbers (the preset).
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+
+from torchrl_ahrs.training.loop import LoopSettings, adaptive_kl_lr, epoch_minibatches
+from torchrl_ahrs.value import WeightedMultiGAE
+
+
+@pytest.mark.parametrize(
+    "kl, expected_lr",
+    [(0.0, 1.5e-3), (0.01, 1e-3), (1.0, 1e-3 / 1.5)],  # below target / 2, in the band, above 2 x target
+)
+def test_adaptive_kl_rule(kl, expected_lr):
+    assert adaptive_kl_lr(1e-3, kl, target=0.01) == pytest.approx(expected_lr)
+
+
+def test_adaptive_kl_respects_bounds_and_needs_a_positive_target():
+    assert adaptive_kl_lr(9e-3, 0.0, target=0.01) == pytest.approx(1e-2)
+    assert adaptive_kl_lr(1.2e-5, 1.0, target=0.01) == pytest.approx(1e-5)  # bounded by min_lr
+    with pytest.raises(ValueError, match="KL target must be positive"):
+        LoopSettings(total_frames=64, kl_target=0.0)
+
+
+def test_each_epoch_serves_every_transition_once_in_a_fresh_order():
+    batch = TensorDict({"a": torch.arange(10.0)}, [10])
+    generator = torch.Generator().manual_seed(0)
+    epochs = [torch.cat([mb["a"] for mb in epoch_minibatches(batch, 3, generator)]).tolist() for _ in range(2)]
+    assert [len(mb) for mb in epoch_minibatches(batch, 3, generator)] == [2, 4, 4]  # torch.chunk's sizes, last first
+    assert all(sorted(order) == list(range(10)) for order in epochs) and epochs[0] != epochs[1]
+
+
+def test_gae_bootstraps_on_truncation_but_not_on_termination():
+    # one step per env, V = 10 everywhere, reward 1: A = r + gamma V(s') (1 - terminated) - V(s)
+    critic = TensorDictModule(
+        lambda obs: torch.full((*obs.shape[:-1], 1), 10.0), in_keys=["observation"], out_keys=["state_value"]
+    )
+    gae = WeightedMultiGAE(["total"], gamma=0.9, lmbda=0.95, value_network=critic)
+    ones = torch.ones(2, 1, 1, dtype=torch.bool)
+    batch = TensorDict(
+        {
+            "observation": torch.zeros(2, 1, 3),
+            "next": {
+                "observation": torch.zeros(2, 1, 3),
+                "reward": {"total": torch.ones(2, 1, 1)},
+                "done": ones,
+                "truncated": torch.tensor([[[True]], [[False]]]),
+                "terminated": torch.tensor([[[False]], [[True]]]),
+            },
+        },
+        [2, 1],
+    )
+    advantage = gae(batch)["advantage"].reshape(-1).tolist()
+    assert advantage == pytest.approx([1.0 + 0.9 * 10.0 - 10.0, 1.0 - 10.0])
+
+
+def test_cassie_preset_carries_legged_gyms_ppo_numbers():
+    """The oracle is the preset's cited source, legged_gym's ``CassieRoughCfgPPO`` (with ``LeggedRobotCfgPPO``):
+    a config edit once dropped the network and the value normalisation without any test noticing."""
+    from conftest import make_cfg
+
+    cfg = make_cfg("task=cassie", "method=ahrs")
+    frames_per_env = cfg.trainer.frames_per_batch // cfg.trainer.num_envs
+    assert frames_per_env == 24  # num_steps_per_env
+    assert cfg.trainer.num_epochs == 5  # num_learning_epochs
+    assert cfg.trainer.frames_per_batch // cfg.trainer.mini_batch_size == 4  # num_mini_batches
+    assert (cfg.trainer.lr, cfg.ppo.kl_target, cfg.trainer.anneal_lr) == (1e-3, 0.01, False)  # adaptive schedule
+    assert (cfg.ppo.entropy_coeff, cfg.ppo.critic_coeff, cfg.ppo.clip_value) == (0.01, 1.0, 0.2)
+    assert (cfg.ppo.gamma, cfg.ppo.lmbda, cfg.trainer.max_grad_norm) == (0.99, 0.95, 1.0)
+    assert list(cfg.model.hidden_sizes) == [512, 256, 128] and cfg.model.activation == "elu"
+    assert cfg.ppo.value_norm == "running"  # ours: one normalised head per component (K = 10 heads)

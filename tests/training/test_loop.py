@@ -1,0 +1,91 @@
+"""The training loop's bookkeeping on a real run (point_reach, MuJoCo): one owner per piece of state and per
+logged name, value-target statistics that absorb each batch once, and a clear refusal to resume a checkpoint
+of the layout before the loop."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra import compose, initialize_config_module
+
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.iteration import train
+from torchrl_ahrs.app.train.runs import read_scalar
+
+FRAMES, ITERATIONS, EPOCHS = 64, 3, 3
+COMPONENTS = ["distance", "arrival", "ctrl"]
+
+
+def make_cfg(*overrides):
+    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+TINY = [
+    "task=point_reach",
+    "task.max_episode_steps=6",
+    "method=hdppo",
+    "trainer.num_envs=8",
+    f"trainer.frames_per_batch={FRAMES}",
+    "trainer.mini_batch_size=32",
+    f"trainer.num_epochs={EPOCHS}",
+    f"trainer.total_frames={ITERATIONS * FRAMES}",
+    "trainer.progress_bar=false",
+    "model.hidden_sizes=[16]",
+    "scheduler.interval=1",
+    "logger.backends=[csv]",
+]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    run = RunDirectory(tmp_path_factory.mktemp("run"))
+    train(make_cfg(*TINY), run.path)
+    return run
+
+
+def tensor_paths(state, path="checkpoint"):
+    """Every (path, tensor) in a nested checkpoint."""
+    if isinstance(state, torch.Tensor):
+        yield path, state
+    elif isinstance(state, dict):
+        for key, value in state.items():
+            yield from tensor_paths(value, f"{path}/{key}")
+    elif isinstance(state, list | tuple):
+        for index, value in enumerate(state):
+            yield from tensor_paths(value, f"{path}[{index}]")
+
+
+def test_the_actor_is_checkpointed_once(run):
+    checkpoint = torch.load(run.checkpoint, weights_only=False)
+    first_layer = next(value for key, value in checkpoint["actor"].items() if key.endswith("weight"))
+    holders = [path for path, tensor in tensor_paths(checkpoint) if tensor.shape == first_layer.shape]
+    holders = [path for path in holders if torch.equal(dict(tensor_paths(checkpoint))[path], first_layer)]
+    assert len(holders) == 1 and holders[0].startswith("checkpoint/actor/"), holders
+
+
+def test_weights_are_logged_once_under_one_name(run):
+    names = sorted(path.relative_to(run.scalars).with_suffix("").as_posix() for path in run.scalars.rglob("*.csv"))
+    assert [name for name in names if "weight" in name] == [f"weight/{c}" for c in sorted(COMPONENTS)]
+    steps = read_scalar(run.scalar("weight/distance"))[0].astype(int).tolist()
+    assert steps == [FRAMES * (i + 1) for i in range(ITERATIONS)]
+
+
+def test_value_target_statistics_absorb_each_batch_once_whatever_the_epochs(run):
+    counts = torch.load(run.checkpoint, weights_only=False)["estimator"]["value_norm.count"]
+    assert counts.flatten().tolist() == [float(ITERATIONS * FRAMES)] * counts.numel()  # not EPOCHS times as many
+
+
+def test_a_checkpoint_of_the_trainer_layout_is_refused_and_the_run_left_alone(run, tmp_path):
+    old = RunDirectory(tmp_path)
+    train(make_cfg(*TINY, f"trainer.total_frames={2 * ITERATIONS * FRAMES}"), old.path)
+    checkpoint = torch.load(old.checkpoint, weights_only=False)
+    checkpoint["state"]["collected_frames"] = FRAMES  # as if interrupted, so the resume does not return at once
+    checkpoint["loss_module"] = {"actor_network": checkpoint.pop("actor"), "critic_network": checkpoint.pop("critic")}
+    torch.save(checkpoint, old.checkpoint)
+    (old.path / "finished.json").unlink()
+    rows = old.scalar("weight/distance").read_text()
+    with pytest.raises(ConfigError, match="no actor, critic entries: it was written by an older version"):
+        train(make_cfg(*TINY, f"resume={old.path}"), old.path)
+    assert old.scalar("weight/distance").read_text() == rows  # nothing truncated before the refusal

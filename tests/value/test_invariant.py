@@ -1,0 +1,65 @@
+"""The invariant every hybrid-reward method rests on: GAE is linear, so with equal weights on raw component
+advantages the mixed advantage is PPO's on the summed reward with the summed value heads. The oracle is
+TorchRL's own GAE on the environment's native reward; the estimator is built from the shipped config, so the
+test fails when the default mix stops being PPO (e.g. ``ppo.component_scale`` back to ``standardize``)."""
+
+import pytest
+import torch
+from conftest import make_cfg
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torchrl.objectives.value import GAE
+
+from torchrl_ahrs.app.shared.settings import scheduler_settings
+from torchrl_ahrs.app.train.build import build_estimator_and_loss, build_networks, env_factory
+from torchrl_ahrs.scheduling import build_scheduler
+
+
+def _mixed_and_oracle(*overrides: str, steps: int = 48, num_envs: int = 4):
+    cfg = make_cfg("task=quadcopter", *overrides)
+    make_envs = env_factory(cfg, check_aux=False)
+    torch.manual_seed(0)
+    networks = build_networks(cfg, make_envs)
+    estimator, _ = build_estimator_and_loss(cfg, networks, make_envs.components)
+    build_scheduler(
+        scheduler_settings(cfg), estimator, make_envs.components
+    )  # installs the method's initial (equal) weights
+    env = make_envs(num_envs, 0)
+    try:
+        with torch.no_grad():
+            rollout = env.rollout(steps, networks.actor, break_when_any_done=False, auto_reset=True)  # [N, T]
+    finally:
+        env.close()
+    networks.actor_norm.update(rollout["observation"].reshape(-1, rollout["observation"].shape[-1]))
+    if estimator.value_norm is not None:  # non-trivial statistics: per-head mean and scale differ
+        estimator.value_norm.update(
+            torch.randn(256, len(make_envs.components)) * torch.arange(1.0, 1 + len(make_envs.components)) + 3.0
+        )
+    mixed = estimator(rollout.clone())["advantage"]  # [N, T, 1] = sum_k w_k A_k
+    summed_values = TensorDictSequential(
+        estimator.value_network,
+        TensorDictModule(lambda v: v.sum(-1, keepdim=True), in_keys=["state_value"], out_keys=["state_value"]),
+    )  # V = sum_k V_k
+    oracle = GAE(gamma=cfg.ppo.gamma, lmbda=cfg.ppo.lmbda, value_network=summed_values)
+    oracle.set_keys(reward=("reward", "total"))  # the native reward (the components add up to it)
+    ppo_advantage = oracle(rollout.clone())["advantage"]  # [N, T, 1]
+    return cfg, estimator, mixed, ppo_advantage
+
+
+@pytest.mark.parametrize("method", ["mcppo", "hdppo", "ahrs_wo_a"])  # methods whose components sum to the native reward
+def test_equal_weights_on_the_default_mix_are_ppo_on_the_summed_reward(method):
+    cfg, estimator, mixed, ppo_advantage = _mixed_and_oracle(f"method={method}")
+    weights = estimator.weights
+    assert torch.allclose(weights, weights[0].expand_as(weights)), "every method starts from equal weights"
+    assert weights[0].item() == cfg.scheduler.base_weight
+    torch.testing.assert_close(mixed, weights[0] * ppo_advantage, rtol=1e-4, atol=1e-5)
+
+
+def test_the_invariant_fails_when_components_are_standardised():
+    _, estimator, mixed, ppo_advantage = _mixed_and_oracle("method=mcppo", "ppo.component_scale=standardize")
+    assert not torch.allclose(mixed, estimator.weights[0] * ppo_advantage, rtol=1e-2, atol=1e-3)
+
+
+def test_ppo_is_the_one_head_case_of_the_same_estimator():
+    _, estimator, mixed, ppo_advantage = _mixed_and_oracle("method=ppo")
+    assert estimator.components == ["total"]
+    torch.testing.assert_close(mixed, estimator.weights[0] * ppo_advantage, rtol=1e-4, atol=1e-5)

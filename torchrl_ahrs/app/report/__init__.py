@@ -1,0 +1,1 @@
+"""The ``report`` command: tables, figures and ``report.md`` of one or more sweeps."""

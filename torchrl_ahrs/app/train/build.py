@@ -1,0 +1,282 @@
+"""Builds the parts of a training run from its config: environments, networks, estimator, loss,
+optimiser, collector and scheduler. Nothing here runs an iteration (that is :mod:`.iteration`).
+
+Devices (``trainer.device``, :func:`resolve_devices`): the learner — networks, observation and value
+normalisers, the estimator's weights, the loss, the optimiser's state, the collected batch and the
+minibatch shuffling — lives on one device. The environments live on it too when their backend computes on
+its torch device (MJX); CPU backends stay on the CPU and the collector moves each step's observation to the
+policy's device and the action back (TorchRL's ``policy_device`` / ``storing_device`` / ``env_device``)."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, cast
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torchrl.collectors import MultiAsyncCollector, MultiSyncCollector
+from torchrl.envs import EnvBase
+from torchrl.modules import ProbabilisticActor
+
+from torchrl_ahrs.app.shared.auxiliary import TransformFactory, auxiliary_transform
+from torchrl_ahrs.app.shared.config import resolve_components
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
+from torchrl_ahrs.app.shared.settings import scheduler_settings
+from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
+from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device
+from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
+from torchrl_ahrs.training.collector import ResumableCollector
+from torchrl_ahrs.training.loss import HybridClipPPOLoss
+from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
+from torchrl_ahrs.value import WeightedMultiGAE
+
+
+@dataclass
+class EnvFactory:
+    """Picklable constructor of the run's environments (the task, its components and the extra
+    transforms such as the auxiliary reward), so collector worker processes build exactly what the
+    learner's probe saw."""
+
+    task: dict[str, Any]
+    components: list[str]
+    transforms: tuple[TransformFactory, ...] = ()
+    device: str = "cpu"  # the environments' torch device (a string: the factory is pickled to workers)
+
+    def __call__(self, num_envs: int, seed: int) -> EnvBase:
+        return make_env(
+            self.task, num_envs, seed, device=self.device, components=self.components, transforms=self.transforms
+        )
+
+
+@dataclass(frozen=True)
+class RunDevices:
+    """Where a run's learner lives (``trainer.device``) and where its environments do."""
+
+    learner: torch.device
+    envs: torch.device
+
+
+def resolve_devices(cfg: DictConfig) -> RunDevices:
+    """``trainer.device`` (null: the simulation's device, :func:`~torchrl_ahrs.envs.registry.simulation_device`)
+    and the environments' device (:func:`~torchrl_ahrs.envs.registry.env_device`).
+
+    Raises:
+        ConfigError: null resolves to a GPU (MJX on JAX's GPU) that torch cannot use here.
+    """
+    configured = cfg.trainer.get("device")
+    if configured is not None:  # validate_config has checked it
+        learner = torch.device(configured)
+    else:
+        learner = simulation_device(cfg.task)
+        if learner.type == "cuda" and not torch.cuda.is_available():  # e.g. jax[cuda12] beside a CPU build of torch
+            raise ConfigError(
+                f"JAX steps on the GPU and trainer.device=null follows it ({learner}), but torch sees no CUDA "
+                "device: install torch with CUDA, or set trainer.device=cpu (per-step copies between the two)"
+            )
+        if learner.type == "cuda" and cfg.trainer.collector != "sync":
+            raise ConfigError(f"trainer.device=null is {learner} here (JAX's GPU), which needs trainer.collector=sync")
+    return RunDevices(learner, env_device(cfg.task, learner))
+
+
+def env_factory(cfg: DictConfig, check_aux: bool = True, device: torch.device | str = "cpu") -> EnvFactory:
+    """The run's :class:`EnvFactory` building environments on ``device``; with ``check_aux`` the auxiliary
+    reward file (when the method uses one) passes the sandbox on real transitions first."""
+    aux = auxiliary_transform(cfg, check=check_aux)
+    # an unsquashed Gaussian samples outside the bounds: the env gets the clipped action, the rollout the sample
+    clip = ClipActionToSpec if cfg.model.get("distribution", "tanh_normal") == "normal" else None
+    task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
+    transforms = tuple(factory for factory in (clip, aux) if factory)
+    return EnvFactory(task, resolve_components(cfg), transforms, str(device))
+
+
+@dataclass
+class Networks:
+    """The policy and the K-head critic with their observation normalisers (``critic_norm`` is
+    ``actor_norm`` unless the task gives the critic privileged observations)."""
+
+    actor: ProbabilisticActor
+    critic: Any
+    actor_norm: RunningNorm
+    critic_norm: RunningNorm
+    critic_key: str
+
+
+def build_networks(
+    cfg: DictConfig, make_envs: EnvFactory, with_critic: bool = True, device: torch.device | str = "cpu"
+) -> Networks:
+    """Actor and critic shaped by a one-env probe of the task (observation sizes, action bounds), on ``device``
+    (initialised on the CPU and moved, so a seed gives the same initial weights on every device).
+
+    Raises:
+        ConfigError: ``task.critic_observation`` names no observation of the task.
+    """
+    probe = make_envs(1, int(cfg.seed))
+    try:
+        obs_dim = probe.observation_spec["observation"].shape[-1]
+        critic_key = cfg.task.get("critic_observation") or "observation"  # asymmetric actor-critic
+        if critic_key not in probe.observation_spec.keys():
+            raise ConfigError(f"task.critic_observation={critic_key!r} is not an observation of task {cfg.task.name!r}")
+        critic_obs_dim = probe.observation_spec[critic_key].shape[-1]
+        action_spec = probe.full_action_spec[probe.action_key].to(device)  # TanhNormal's bounds come from it
+    finally:
+        probe.close()
+    model = cfg.model
+    actor_norm = RunningNorm(obs_dim)
+    critic_norm = actor_norm if critic_key == "observation" else RunningNorm(critic_obs_dim)
+    actor = build_actor(
+        actor_norm,
+        obs_dim,
+        action_spec,
+        model.hidden_sizes,
+        model.activation,
+        model.init_log_std,
+        distribution=model.get("distribution", "tanh_normal"),
+    )
+    critic = None
+    if with_critic:
+        critic = build_critic(
+            critic_norm,
+            critic_obs_dim,
+            len(make_envs.components),
+            model.hidden_sizes,
+            model.activation,
+            model.separate_heads,
+            in_key=critic_key,
+        )
+    actor.to(device)  # moves actor_norm (and critic_norm when they are one module) too
+    if critic is not None:
+        critic.to(device)
+    critic_norm.to(device)
+    return Networks(actor, critic, actor_norm, critic_norm, critic_key)
+
+
+def build_estimator_and_loss(
+    cfg: DictConfig, networks: Networks, components: Sequence[str], device: torch.device | str = "cpu"
+):
+    """:class:`WeightedMultiGAE` over the K components and the PPO loss that trains on its mixed advantage,
+    with every buffer (weights, shares, value-norm statistics, the loss's coefficients) on ``device``.
+
+    With ``ppo.value_norm`` the loss regresses the critic's normalised heads while the estimator reads
+    them mapped back to reward units (training/value_norm.py); the statistics live in the estimator's
+    value network (checkpointed with it) and are reachable as ``estimator.value_norm``."""
+    ppo = cfg.ppo
+    value_norm = make_value_norm(ppo.get("value_norm"), len(components))
+    gae_critic = denormalized_critic(networks.critic, value_norm) if value_norm is not None else networks.critic
+    estimator = WeightedMultiGAE(
+        list(components),
+        gamma=ppo.gamma,
+        lmbda=ppo.lmbda,
+        value_network=gae_critic,
+        component_scale=ppo.component_scale,
+        value_norm=value_norm,  # read by component_scale=value_norm; updated by the loop (training/loop.py)
+    )
+    estimator.to(device)  # the weights [K] and shares [K] buffers, and the value-norm statistics
+    loss = HybridClipPPOLoss(
+        networks.actor,
+        networks.critic,
+        clip_epsilon=ppo.clip_epsilon,
+        entropy_bonus=ppo.entropy_coeff > 0,
+        entropy_coeff=ppo.entropy_coeff,
+        critic_coeff=ppo.critic_coeff,
+        loss_critic_type="l2",
+        normalize_advantage=ppo.normalize_advantage,
+        clip_value=ppo.get("clip_value"),  # in normalised units when value_norm is on
+        kl=ppo.get("kl_target") is not None,  # the adaptive-KL rule reads the loss's "kl"
+        # the modules are called as they are: the functional parameter swap (to_module per call) cost ~1 ms
+        # per minibatch, a third of a small-minibatch loss step, and nothing here needs functional calls
+        functional=False,
+    )
+    return estimator, loss.to(device)
+
+
+@dataclass
+class _WorkerEnvs:
+    """One collector worker's environments (picklable: a factory, a size and a seed)."""
+
+    make_envs: EnvFactory
+    num_envs: int
+    seed: int
+
+    def __call__(self) -> EnvBase:
+        return self.make_envs(self.num_envs, self.seed)
+
+
+def build_collector(cfg: DictConfig, policy, make_envs: EnvFactory, device: torch.device | str = "cpu"):
+    """``sync``: the envs step in this process between updates, the policy acts and the batch is stored on
+    ``device`` (TorchRL's ``policy_device`` / ``storing_device``; the env keeps its own device, and the
+    collector casts between the two when they differ). ``multi``: ``workers`` processes each
+    step ``num_envs / workers`` envs, all waiting for the update. ``async``: the worker processes keep
+    collecting while the learner updates (each iteration trains on one worker's share of the batch,
+    gathered with the previous iteration's policy). Each (worker's) collector is a
+    :class:`ResumableCollector`: on resume the trainer's registry restores its frame counter (so
+    ``total_frames`` is always the whole budget), its environments and the episodes they were in."""
+    trainer_cfg = cfg.trainer
+    frames_per_batch = trainer_cfg.frames_per_batch
+    if trainer_cfg.collector == "sync":
+        env = make_envs(trainer_cfg.num_envs, int(cfg.seed))
+        return ResumableCollector(
+            env,
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=trainer_cfg.total_frames,
+            auto_register_policy_transforms=False,
+            env_device=env.device,
+            policy_device=device,
+            storing_device=device,
+        )
+    workers = trainer_cfg.workers
+    env_fns = [
+        _WorkerEnvs(make_envs, trainer_cfg.num_envs // workers, int(cfg.seed) + 1000 * worker)
+        for worker in range(workers)
+    ]
+    if trainer_cfg.collector == "async":
+        return MultiAsyncCollector(
+            env_fns,
+            policy,
+            frames_per_batch=frames_per_batch // workers,
+            total_frames=trainer_cfg.total_frames,
+            collector_class=ResumableCollector,
+            auto_register_policy_transforms=False,  # as the sync collector: the envs carry every transform
+        )
+    return MultiSyncCollector(
+        env_fns,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=trainer_cfg.total_frames,
+        cat_results=0,
+        collector_class=ResumableCollector,
+        auto_register_policy_transforms=False,
+        use_buffers=True,  # what TorchRL assumes (with a warning at the first batch) when it is not said
+    )
+
+
+def build_checked_scheduler(
+    cfg: DictConfig, estimator: WeightedMultiGAE, components: list[str], run: RunDirectory | None, logger
+) -> RuleScheduler:
+    """``build_scheduler`` writing into ``run`` (decisions, LLM calls), with every rule tried once on
+    K-shaped statistics, so a rule file that cannot serve this task fails at start as a
+    :class:`ConfigError` rather than at the first decision. ``llm.replay_from`` may name a run directory."""
+    if cfg.get("llm") and cfg.llm.get("replay_from"):
+        cfg = copy.deepcopy(cfg)
+        cfg.llm.replay_from = calls_log(cfg.llm.replay_from)
+    decisions, llm_calls = (run.decisions, run.llm_calls) if run is not None else (None, None)
+    try:
+        scheduler = build_scheduler(scheduler_settings(cfg), estimator, components, decisions, logger, llm_calls)
+    except (ValueError, KeyError, FileNotFoundError, ImportError, SyntaxError) as error:
+        raise ConfigError(f"scheduler setup failed: {error}") from error
+    num_components = len(components)
+    statistics = (torch.linspace(-1.0, 1.0, num_components), torch.ones(num_components))
+    history = torch.zeros(cfg.scheduler.history_length, num_components)
+    misfits = []
+    for rule in scheduler.repository.rules:
+        try:
+            rule.scores(*statistics, history, estimator.weights.to("cpu", copy=True))  # rules see CPU summaries
+        except Exception as error:  # a rule file is user input: any failure is a misfit, reported by name
+            misfits.append(f"{rule.key}: {error}")
+    if misfits:
+        raise ConfigError(f"rules that do not fit K={num_components} components {components}: " + "; ".join(misfits))
+    return scheduler
