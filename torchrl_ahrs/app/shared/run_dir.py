@@ -44,6 +44,7 @@ VIDEOS = "videos"
 HYDRA = ".hydra"
 HYDRA_FILES = (CONFIG, "hydra.yaml", "overrides.yaml")  # what Hydra writes into HYDRA
 MULTIRUN = "multirun.yaml"  # Hydra's record of a sweep, in the sweep directory
+PLAN = "plan.yaml"  # the cells an experiment planned, written before it ran (app/train/runs.py::planned_cells)
 REDACTED = "<redacted>"  # the redaction marker: what a secret value is replaced with in every file above
 
 

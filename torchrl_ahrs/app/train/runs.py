@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from torchrl_ahrs.app.shared.run_dir import CONFIG, HYDRA, MULTIRUN, RunDirectory
+from torchrl_ahrs.app.shared.run_dir import CONFIG, HYDRA, MULTIRUN, PLAN, RunDirectory
 from torchrl_ahrs.app.train.checkpoint import collected_frames
 from torchrl_ahrs.reporting.records import Run, method_label, method_rank
 from torchrl_ahrs.reporting.stats import final_return, final_window_mask
@@ -125,6 +125,25 @@ def find_run_dirs(sweep_dir: Path) -> list[Path]:
     return sorted(found)
 
 
+def seed_list(spec: Any) -> list[int] | None:
+    """Seeds written as Hydra sweeps them: ``1,2,3``, ``range(1,11)`` (stop excluded) or a YAML list; None
+    when ``spec`` is none of these.
+
+    Example:
+        >>> seed_list("range(1,4)"), seed_list("7,8"), seed_list([2, 1])
+        ([1, 2, 3], [7, 8], [1, 2])
+    """
+    if isinstance(spec, list):
+        return sorted(int(seed) for seed in spec)
+    text = str(spec).replace(" ", "")
+    try:
+        if text.startswith("range(") and text.endswith(")"):  # Hydra's range(start,stop[,step]) sweep
+            return list(range(*(int(part) for part in text[6:-1].split(","))))
+        return sorted(int(part) for part in text.split(","))
+    except (TypeError, ValueError):
+        return None
+
+
 def expected_seeds(sweep_dir: Path) -> list[int] | None:
     """The seeds the sweep asked for, from Hydra's ``multirun.yaml`` (``hydra.sweeper.params.seed`` or a
     ``seed=a,b,c`` override); None when the file or the parameter is absent or not a plain list."""
@@ -136,21 +155,41 @@ def expected_seeds(sweep_dir: Path) -> list[int] | None:
     for override in (hydra.get("overrides") or {}).get("task") or []:
         if str(override).startswith("seed="):
             spec = str(override).split("=", 1)[1]
-    if spec is None:
+    return None if spec is None else seed_list(spec)
+
+
+def planned_cells(sweep_dir: Path) -> set[tuple[str, str, int]] | None:
+    """The (task, method, seed) cells of ``plan.yaml`` in the sweep directory, None without one.
+
+    Hydra's ``multirun.yaml`` records only the last invocation, so a sweep directory filled by several
+    (arms on 10 seeds, fixed rules on 5, later seeds added) cannot say which runs are missing; a plan can.
+    Its format: ``cells:`` a list of ``{task, methods: [...], seeds: <a Hydra seed sweep or a list>}`` (quote a
+    ``range(a,b)`` inside a YAML flow mapping, whose commas would split it).
+
+    Example:
+        >>> import tempfile
+        >>> sweep = Path(tempfile.mkdtemp())
+        >>> _ = (sweep / "plan.yaml").write_text("cells: [{task: ant, methods: [ppo], seeds: 'range(1,3)'}]")
+        >>> sorted(planned_cells(sweep))
+        [('ant', 'ppo', 1), ('ant', 'ppo', 2)]
+    """
+    path = sweep_dir / PLAN
+    if not path.is_file():
         return None
-    text = str(spec).replace(" ", "")
-    try:
-        if text.startswith("range(") and text.endswith(")"):  # Hydra's range(start,stop[,step]) sweep
-            return list(range(*(int(part) for part in text[6:-1].split(","))))
-        return sorted(int(part) for part in text.split(","))
-    except (TypeError, ValueError):
-        return None
+    cells = set()
+    for number, cell in enumerate((yaml.safe_load(path.read_text()) or {}).get("cells") or []):
+        seeds = seed_list(cell.get("seeds")) if isinstance(cell, dict) else None
+        if seeds is None or not cell.get("task") or not cell.get("methods"):
+            raise ValueError(f"{path}: cell {number} needs task, methods and seeds (e.g. range(1,11)), got {cell!r}")
+        cells |= {(str(cell["task"]), str(method), seed) for method in cell["methods"] for seed in seeds}
+    return cells
 
 
 def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
     """All runs of one sweep (or of several pooled, e.g. a sweep extended later with more seeds), plus a
-    ``missing`` placeholder for every seed a sweep asked for (``multirun.yaml``; without it, the seeds its
-    other cells have) that no pooled sweep holds, in every (task, method) cell of that sweep."""
+    ``missing`` placeholder for every planned cell that no pooled sweep holds: the cells of the sweep's
+    ``plan.yaml`` (:func:`planned_cells`) or, without one, every seed the sweep asked for (``multirun.yaml``;
+    without it, the seeds its other cells have) in every (task, method) cell of that sweep."""
     sweep_dirs = [Path(sweep_dirs)] if isinstance(sweep_dirs, str | Path) else [Path(d) for d in sweep_dirs]
     runs, wanted = [], set()
     for sweep_dir in sweep_dirs:
@@ -158,8 +197,12 @@ def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
         for path in find_run_dirs(sweep_dir):
             found.append(load_run(path))
             found[-1].where = f"{sweep_dir.name}/{path.relative_to(sweep_dir)}"
-        seeds = expected_seeds(sweep_dir) or sorted({run.seed for run in found})
-        wanted |= {(run.task, run.method, seed) for run in found for seed in seeds}
+        plan = planned_cells(sweep_dir)
+        if plan is not None:
+            wanted |= plan
+        else:
+            seeds = expected_seeds(sweep_dir) or sorted({run.seed for run in found})
+            wanted |= {(run.task, run.method, seed) for run in found for seed in seeds}
         runs += found
     present = {(run.task, run.method, run.seed) for run in runs}
     for task, method, seed in sorted(wanted - present):
