@@ -204,7 +204,8 @@ def load_sweep(sweep_dirs: Path | list[Path]) -> list[Run]:
             seeds = expected_seeds(sweep_dir) or sorted({run.seed for run in found})
             wanted |= {(run.task, run.method, seed) for run in found for seed in seeds}
         runs += found
-    present = {(run.task, run.method, run.seed) for run in runs}
+    # a plan names methods as their configs do (ahrs_wo_a); a run's label may add who chose (ahrs_wo_a[bandit])
+    present = {(run.task, name, run.seed) for run in runs for name in (run.method, run.method.split("[")[0])}
     for task, method, seed in sorted(wanted - present):
         runs.append(Run(None, task, method, seed, "missing", "no run directory for this seed"))
     return sorted(runs, key=lambda r: (r.task, method_rank(r.method), r.seed))
