@@ -182,7 +182,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
             metrics.update(run.scheduler.observe_batch(batch))  # into its statistics; weight/<c> in force
 
             # ---- 3. PPO epochs ------------------------------------------------------------------------------
-            average: TensorDictBase | None = None
+            last_epoch_losses: list[TensorDictBase] = []  # train/<term> is the last epoch's mean over its minibatches
             for epoch in range(settings.num_epochs):
                 with torch.no_grad():
                     # advantages with the current critic: A_k and value_target [N, T, K], advantage = Σ_k w_k A_k
@@ -194,7 +194,8 @@ def learn(run: TrainingRun) -> dict[str, float]:
                             run.value_norm.update(targets)
                         selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
                         selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
-                for j, minibatch in enumerate(epoch_minibatches(selected, settings.num_minibatches, run.generator)):
+                logged = epoch == settings.num_epochs - 1
+                for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator):
                     progress.optim_steps += 1
                     losses = run.loss(minibatch)
                     # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
@@ -205,26 +206,27 @@ def learn(run: TrainingRun) -> dict[str, float]:
                         )
                         for group in optimizer.param_groups:
                             group["lr"] = lr
-                        losses.set("lr", torch.tensor(lr))
+                        if logged:
+                            losses.set("lr", torch.tensor(lr))
                     # step: the sum of the loss_* terms, the gradient's global norm clipped to max_grad_norm; a
-                    # non-finite loss or gradient stops the run before the step could write NaN into the networks
+                    # non-finite loss or gradient stops the run before the step could write NaN into the networks.
+                    # One test covers both (a sum of finite numbers is finite unless it overflows: then the
+                    # function finds both finite and the step goes on); the loss is tested apart because a
+                    # finite gradient does not make it finite (an inf squared error has a finite slope)
                     total = sum(value for key, value in losses.items() if key.startswith("loss_"))
-                    check_finite_update(total, losses, minibatch, components, progress.optim_steps)
                     total.backward()
-                    grad_norm = nn.utils.clip_grad_norm_(params, max_norm).detach()
-                    check_finite_update(grad_norm, losses, minibatch, components, progress.optim_steps, "gradient")
-                    losses.set("grad_norm", grad_norm)
+                    grad_norm = nn.utils.clip_grad_norm_(params, max_norm)  # computed without grad
+                    if not bool(torch.isfinite(total.detach() + grad_norm)):
+                        check_finite_update(total, losses, minibatch, components, progress.optim_steps)
+                        check_finite_update(grad_norm, losses, minibatch, components, progress.optim_steps, "gradient")
                     optimizer.step()
                     optimizer.zero_grad()
-                    losses = losses.detach()
-                    # train/<term>: a running mean restarted every epoch, so the last epoch's mean is logged (as
-                    # TorchRL's Trainer, which ran this loop before, averaged; so earlier runs' numbers compare)
-                    if j == 0 or average is None:
-                        average = losses
-                    else:  # mean_n = mean_{n-1} (n - 1) / n + x_n / n
-                        average = average.apply(lambda mean, x, n=j + 1: mean * (n - 1) / n + x / n, losses)
-            if average is not None:
-                metrics.update({f"train/{key}": v.mean().item() for key, v in average.items() if v.numel()})
+                    if logged:
+                        losses.set("grad_norm", grad_norm)
+                        last_epoch_losses.append(losses)
+            # train/<term>: the last epoch's mean (as TorchRL's Trainer, which ran this loop before, averaged; so
+            # earlier runs' numbers compare), computed once instead of a TensorDict running mean per minibatch
+            metrics.update(epoch_means(last_epoch_losses))
             shares = estimator.shares.tolist()  # w_k std(A'_k) / Σ_j w_j std(A'_j) of the last epoch's advantages
             metrics.update({f"share/{name}": share for name, share in zip(components, shares, strict=True)})
 
@@ -311,6 +313,37 @@ def check_finite_update(
     raise FloatingPointError(
         f"non-finite {what} at optimiser step {optim_step}{where}{why}; update not applied, training stopped"
     )
+
+
+def epoch_means(losses: Sequence[TensorDictBase]) -> dict[str, float]:
+    """``{"train/<term>": mean}`` over one epoch's minibatch outputs ``losses`` (each term averaged over the
+    minibatches, then over its elements; empty terms left out), without autograd.
+
+    The mean is the running mean the loop used to update after every minibatch, ``m_n = m_(n-1) (n - 1) / n +
+    x_n / n``, computed here once per epoch over all terms at once: the same float operations in the same order,
+    so the logged numbers stay those of earlier runs bit for bit.
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> epoch_means([TensorDict({"loss_critic": torch.tensor(1.0)}), TensorDict({"loss_critic": torch.tensor(2.0)})])
+        {'train/loss_critic': 1.5}
+    """
+    if not losses:
+        return {}
+    with torch.no_grad():
+        stacked = {key: torch.stack([step.get(key) for step in losses]) for key in losses[0].keys()}  # [M, *shape]
+        by_dtype: dict[torch.dtype, list[str]] = {}
+        for key, values in stacked.items():
+            by_dtype.setdefault(values.dtype, []).append(key)
+        means: dict[str, torch.Tensor] = {}
+        for keys in by_dtype.values():  # one [M, P] table per dtype: a cat would promote the others
+            table = torch.cat([stacked[key].reshape(len(losses), -1) for key in keys], 1)
+            mean = table[0]
+            for n in range(2, len(losses) + 1):
+                mean = mean * (n - 1) / n + table[n - 1] / n
+            for key, part in zip(keys, mean.split([stacked[key][0].numel() for key in keys]), strict=True):
+                means[key] = part.reshape(stacked[key].shape[1:])
+        return {f"train/{key}": means[key].mean().item() for key in stacked if means[key].numel()}
 
 
 def adaptive_kl_lr(
