@@ -5,7 +5,8 @@ In the order it runs (the section comments in :func:`learn` carry these numbers)
     1. collect       the Collector steps N envs x T steps with the current policy              -> batch [N, T]
                      (the env's RewardComponents wrote ("next", "reward", c), c = 1..K); FiniteGuard stops on NaN
     2. returns       reward/<c> (mean per step), return/<c> (episodes that ended), the scheduler's statistics
-    3. PPO epochs    per epoch: advantages (WeightedMultiGAE with the current critic), value targets standardised
+    3. PPO epochs    per epoch (advantage_pass="every_epoch"; "once_per_batch": before the first epoch only):
+                     advantages (WeightedMultiGAE with the current critic), value targets standardised
                      -> minibatches -> HybridClipPPOLoss -> KL and learning rate -> Adam step, gradient clipped
     4. normalisers   the observation statistics absorb the batch just trained on; the learning rate anneals;
                      the collector gets the new policy
@@ -38,6 +39,10 @@ from torchrl_ahrs.training.models import RunningNorm
 # what the loss (and the KL between the collecting and the current policy) reads from a minibatch, besides
 # the loss's own in_keys; the batch also holds "next", episode accumulators... that are never gathered
 MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
+# when the advantages and value targets are estimated: before every PPO epoch with the critic as it is then
+# (TorchRL's sota PPO; "What matters in on-policy RL" recommends it), or once per batch before the first epoch
+# with the collecting critic (CleanRL, rsl_rl, rl_games): E - 1 fewer critic passes over the batch
+ADVANTAGE_PASSES = ("every_epoch", "once_per_batch")
 
 
 @dataclass(frozen=True)
@@ -46,7 +51,9 @@ class LoopSettings:
 
     ``anneal_lr``: ``lr_i = lr_0 (1 - frames_i / total_frames)`` after every iteration; ``kl_target``: instead,
     :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
-    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped).
+    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped); ``advantage_pass``:
+    ``"every_epoch"`` re-estimates advantages and value targets with the current critic before each epoch,
+    ``"once_per_batch"`` only before the first (the same update with one epoch).
 
     Example:
         >>> LoopSettings(total_frames=4096, num_minibatches=0)
@@ -61,6 +68,7 @@ class LoopSettings:
     max_grad_norm: float | None = 1.0
     anneal_lr: bool = True
     kl_target: float | None = None
+    advantage_pass: str = "every_epoch"
 
     def __post_init__(self):
         for name in ("total_frames", "num_epochs", "num_minibatches"):
@@ -68,6 +76,10 @@ class LoopSettings:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.kl_target is not None and self.kl_target <= 0:
             raise ValueError(f"the KL target must be positive, got {self.kl_target}")
+        if self.advantage_pass not in ADVANTAGE_PASSES:
+            raise ValueError(
+                f"advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {self.advantage_pass!r}"
+            )
 
 
 @dataclass
@@ -184,16 +196,17 @@ def learn(run: TrainingRun) -> dict[str, float]:
             # ---- 3. PPO epochs ------------------------------------------------------------------------------
             last_epoch_losses: list[TensorDictBase] = []  # train/<term> is the last epoch's mean over its minibatches
             for epoch in range(settings.num_epochs):
-                with torch.no_grad():
-                    # advantages with the current critic: A_k and value_target [N, T, K], advantage = Σ_k w_k A_k
-                    estimator(batch)
-                    selected = batch.select(*keys, strict=False)  # shares the tensors; the sets below stay out of batch
-                    if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
-                        targets = selected.get("value_target")
-                        if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
-                            run.value_norm.update(targets)
-                        selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
-                        selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
+                if epoch == 0 or settings.advantage_pass == "every_epoch":  # once_per_batch: epoch 0's serve all
+                    with torch.no_grad():
+                        # advantages with the current critic: A_k, value_target [N, T, K], advantage = Σ_k w_k A_k
+                        estimator(batch)
+                        selected = batch.select(*keys, strict=False)  # shares the tensors; the sets stay out of batch
+                        if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
+                            targets = selected.get("value_target")
+                            if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
+                                run.value_norm.update(targets)
+                            selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
+                            selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
                 logged = epoch == settings.num_epochs - 1
                 for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator):
                     progress.optim_steps += 1
