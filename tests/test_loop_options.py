@@ -1,6 +1,6 @@
 """The training loop's throughput options on real runs (point_reach, MuJoCo): advantages once per batch
-(``ppo.advantage_pass``), and the one finiteness test per minibatch that still refuses a non-finite loss whose
-gradient is finite."""
+(``ppo.advantage_pass``), the loss through ``torch.compile`` (``trainer.compile``), and the one finiteness test per
+minibatch that still refuses a non-finite loss whose gradient is finite."""
 
 from __future__ import annotations
 
@@ -92,6 +92,8 @@ def test_an_unknown_advantage_pass_is_refused_in_one_line(tmp_path):
     assert not (tmp_path / "run" / "config.yaml").exists()  # refused before anything was written
     with pytest.raises(ValueError, match="advantage_pass must be one of"):
         LoopSettings(total_frames=64, advantage_pass="per_minibatch")
+    with pytest.raises(ConfigError, match="trainer.compile must be true or false"):
+        train(make_cfg(*TINY, "trainer.compile=yes"), tmp_path / "run")
 
 
 def test_a_loss_that_overflows_under_a_finite_gradient_is_refused_naming_it(tmp_path, monkeypatch):
@@ -111,3 +113,24 @@ def test_a_loss_that_overflows_under_a_finite_gradient_is_refused_naming_it(tmp_
     with pytest.raises(FloatingPointError, match=r"non-finite loss at optimiser step 1 in loss_critic \(reward comp"):
         train(cfg, tmp_path / "run")
     assert len(norms) == 1 and torch.isfinite(torch.tensor(norms[0])), norms
+
+
+@pytest.mark.slow
+def test_a_compiled_loss_trains_like_the_eager_one(tmp_path):
+    # inductor generates and builds C++ for the loss's forward and backward at the first minibatch (seconds to a
+    # minute, then cached); the kernels fuse and reorder float operations, so the runs agree to float tolerance
+    from torch._dynamo.utils import counters  # what torch's own tests read to see that dynamo compiled
+
+    eager, eager_state = run_once(tmp_path, "eager", "trainer.num_epochs=2")
+    counters.clear()
+    compiled, compiled_state = run_once(tmp_path, "compiled", "trainer.num_epochs=2", "trainer.compile=true")
+    assert counters["stats"]["unique_graphs"] >= 1  # the loss ran through dynamo, not eagerly
+    for part in ("actor", "critic"):
+        for key, value in eager_state[part].items():
+            torch.testing.assert_close(compiled_state[part][key], value, rtol=1e-4, atol=1e-5, msg=f"{part} {key}")
+    eager_curves, compiled_curves = train_scalars(eager), train_scalars(compiled)
+    assert eager_curves.keys() == compiled_curves.keys()
+    for name, values in eager_curves.items():
+        # explained variance divides by the targets' variance over a 32-transition minibatch: looser
+        tolerance = 1e-2 if name == "explained_variance" else 1e-4
+        torch.testing.assert_close(torch.tensor(compiled_curves[name]), torch.tensor(values), rtol=tolerance, atol=1e-5)

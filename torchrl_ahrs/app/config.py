@@ -134,6 +134,8 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"ppo.advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {ppo.advantage_pass!r}"
         )
+    if not isinstance(trainer.get("compile", False), bool):
+        raise ConfigError(f"trainer.compile must be true or false, got {trainer.compile!r}")
     components = resolve_components(cfg)
     known = set(cfg.task.components) | {"total"} | aux_leaves(cfg.method.get("auxiliary"))
     unknown = [name for name in components if name not in known]

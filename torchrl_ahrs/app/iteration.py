@@ -124,6 +124,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         anneal_lr=bool(cfg.trainer.anneal_lr),
         kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
         advantage_pass=cfg.ppo.get("advantage_pass", "every_epoch"),  # a run saved before the key: every epoch
+        compile=bool(cfg.trainer.get("compile", False)),
     )
     # the run's state: one entry per owner (listed in app/checkpoint.py); saved after the iteration's last step
     registry: dict[str, Any] = {

@@ -53,7 +53,8 @@ class LoopSettings:
     :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
     ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped); ``advantage_pass``:
     ``"every_epoch"`` re-estimates advantages and value targets with the current critic before each epoch,
-    ``"once_per_batch"`` only before the first (the same update with one epoch).
+    ``"once_per_batch"`` only before the first (the same update with one epoch); ``compile``: the loss's forward
+    (actor, critic and the PPO terms) runs through ``torch.compile`` (inductor), compiled at the first minibatch.
 
     Example:
         >>> LoopSettings(total_frames=4096, num_minibatches=0)
@@ -69,6 +70,7 @@ class LoopSettings:
     anneal_lr: bool = True
     kl_target: float | None = None
     advantage_pass: str = "every_epoch"
+    compile: bool = False
 
     def __post_init__(self):
         for name in ("total_frames", "num_epochs", "num_minibatches"):
@@ -176,6 +178,9 @@ def learn(run: TrainingRun) -> dict[str, float]:
     if settings.kl_target is not None and not getattr(run.loss, "kl", False):
         raise ValueError("LoopSettings.kl_target reads the loss's 'kl' output: build HybridClipPPOLoss(..., kl=True)")
     guard = FiniteGuard(components)
+    # the loss's forward through inductor (actor, critic and the PPO terms, and so their backward); the module
+    # itself stays the one the optimiser, the checkpoint and the collector know
+    loss_forward = torch.compile(run.loss) if settings.compile else run.loss
     latest: dict[str, float] = {}
     last_time = time.perf_counter()
     try:
@@ -210,7 +215,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
                 logged = epoch == settings.num_epochs - 1
                 for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator):
                     progress.optim_steps += 1
-                    losses = run.loss(minibatch)
+                    losses = loss_forward(minibatch)
                     # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
                     # collecting to the current policy (rsl_rl's adaptive rule)
                     if settings.kl_target is not None:
