@@ -53,7 +53,8 @@ class LoopSettings:
     :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
     ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped); ``advantage_pass``:
     ``"every_epoch"`` re-estimates advantages and value targets with the current critic before each epoch,
-    ``"once_per_batch"`` only before the first (the same update with one epoch); ``compile``: the loss's forward
+    ``"once_per_batch"`` only before the first (the same update with one epoch; a value clip then clips around
+    the collecting critic's values, as rl_games' does, not the epoch's); ``compile``: the loss's forward
     (actor, critic and the PPO terms) runs through ``torch.compile`` (inductor), compiled at the first minibatch.
 
     Example:
