@@ -3,6 +3,10 @@
 Usage::
 
     python benchmarks/throughput/bench_floor.py --task cassie [--method ppo] [--batches 10] [--warmup 2] [override ...]
+    python benchmarks/throughput/bench_floor.py --task cassie --variants default,once,compile,threads2,once+threads2
+
+``--variants`` measures each variant in turn in this one process, one table each (and a summary): a variant is
+a name of :data:`VARIANTS` or several joined by ``+``, its Hydra overrides after those of the command line.
 
 Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method>`` does (the task's preset
 included; extra Hydra overrides follow the flags), then measures in this one process, with the run's torch
@@ -14,9 +18,11 @@ thread count and per collected batch of N envs x T steps:
   random actions, partial resets included;
 * ``policy forward``: the actor sampling actions for N observations, T times;
 * ``collection``: the run's ``Collector`` delivering a batch: physics, policy and TorchRL's per-step work;
-* ``advantages``: ``WeightedMultiGAE`` over one collected batch, once per epoch (as ``training/loop.py`` runs it);
+* ``advantages``: ``WeightedMultiGAE`` over one collected batch, once per epoch (as ``training/loop.py`` runs it
+  with ``ppo.advantage_pass=every_epoch``; once per batch with ``once_per_batch``);
 * ``loss steps``: loss forward, backward, gradient clipping and a fused Adam step on a ready minibatch of the
-  run's size, times epochs x minibatches.
+  run's size, times epochs x minibatches (the forward through ``torch.compile`` with ``trainer.compile=true``,
+  compiled in the untimed warm-up).
 
 The floor is physics + loss steps, what any PPO at this geometry and network size pays; ``rest`` is the end
 to end time minus collection, advantages and loss steps: what the iteration's hooks, minibatch serving and
@@ -39,6 +45,34 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_ahrs.app.shared.config import num_minibatches
 from torchrl_ahrs.app.train.build import build_collector, build_estimator_and_loss, build_networks, env_factory
 from torchrl_ahrs.training.loop import MINIBATCH_KEYS
+
+# what --variants accepts: a name -> the Hydra overrides it adds (names join with "+": once+threads2)
+VARIANTS: dict[str, list[str]] = {
+    "default": [],  # the composed config as it is
+    "once": ["ppo.advantage_pass=once_per_batch"],  # advantages once per batch instead of once per epoch
+    "compile": ["trainer.compile=true"],  # the loss's forward through torch.compile (inductor)
+    "threads1": ["trainer.torch_threads=1"],
+    "threads2": ["trainer.torch_threads=2"],  # a second intra-op thread for the networks
+}
+
+
+def variant_overrides(variant: str) -> list[str]:
+    """The Hydra overrides of ``variant`` (names of :data:`VARIANTS` joined by ``+``).
+
+    Example:
+        >>> variant_overrides("once+threads2")
+        ['ppo.advantage_pass=once_per_batch', 'trainer.torch_threads=2']
+        >>> variant_overrides("fast")
+        Traceback (most recent call last):
+        ...
+        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2 (join with +)
+    """
+    overrides = []
+    for name in variant.split("+"):
+        if name not in VARIANTS:
+            raise ValueError(f"unknown variant {name!r}; known: {', '.join(VARIANTS)} (join with +)")
+        overrides += VARIANTS[name]
+    return overrides
 
 
 def median_ms(fn, repeats: int, warmup: int = 2) -> float:
@@ -96,13 +130,17 @@ def floor_parts(cfg, repeats: int) -> dict[str, float]:
         with torch.no_grad():
             estimator(batch)
 
-    parts[f"advantages (x {trainer.num_epochs} epochs)"] = trainer.num_epochs * median_ms(advantages, repeats)
+    passes = 1 if cfg.ppo.get("advantage_pass", "every_epoch") == "once_per_batch" else trainer.num_epochs
+    parts[f"advantages (x {passes} {'epochs' if passes == trainer.num_epochs else 'pass'})"] = passes * median_ms(
+        advantages, repeats
+    )
     keys = [*loss.in_keys, *MINIBATCH_KEYS]  # what training/loop.py gathers into minibatches
     minibatch = batch.reshape(-1)[: trainer.mini_batch_size].select(*keys, strict=False)
     optimizer = torch.optim.Adam(loss.parameters(), lr=1e-5, eps=1e-5, fused=True)  # as train() builds it
+    loss_forward = torch.compile(loss) if trainer.get("compile", False) else loss  # as training/loop.py calls it
 
     def loss_step() -> None:
-        losses = loss(minibatch)
+        losses = loss_forward(minibatch)
         sum(value for key, value in losses.items() if key.startswith("loss_")).backward()
         torch.nn.utils.clip_grad_norm_(loss.parameters(), trainer.max_grad_norm)
         optimizer.step()
@@ -113,20 +151,8 @@ def floor_parts(cfg, repeats: int) -> dict[str, float]:
     return parts
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--task", required=True)
-    parser.add_argument("--method", default="ppo")
-    parser.add_argument("--batches", type=int, default=10, help="timed batches of the end-to-end run")
-    parser.add_argument("--warmup", type=int, default=2, help="batches of the end-to-end run left out of its timing")
-    parser.add_argument("--repeats", type=int, default=5, help="repeats of each part (loss steps: 10x as many)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. trainer.torch_threads=2")
-    args = parser.parse_args()
-    overrides = [f"task={args.task}", f"method={args.method}", f"seed={args.seed}", *args.overrides]
-    overrides += ["trainer.progress_bar=false", "checkpoint.interval=0", "logger.backends=[csv]"]
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=overrides)
+def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace) -> tuple[float, float]:
+    """Prints the table of one variant (``cfg`` composed with its overrides); returns (floor, end to end) [ms]."""
     trainer = cfg.trainer
     # warm-up + timed batches, plus the untimed first and last batches (timed_train drops the last)
     trainer.total_frames = (args.batches + args.warmup + 2) * trainer.frames_per_batch
@@ -138,11 +164,13 @@ def main() -> None:
     end_to_end = 1e3 * trainer.frames_per_batch / fps
     floor = parts["physics (random actions)"] + next(v for k, v in parts.items() if k.startswith("loss steps"))
     model = cfg.model
+    overrides = " ".join(variant_overrides(variant)) or "no overrides"
     print(
-        f"task {args.task}, method {args.method}: {trainer.num_envs} envs x {trainer.frames_per_batch // trainer.num_envs}"
-        f" steps = {trainer.frames_per_batch} frames per batch, {trainer.num_epochs} epochs x {num_minibatches(cfg)}"
-        f" minibatches of {trainer.mini_batch_size}, {list(model.hidden_sizes)} {model.activation},"
-        f" torch threads {trainer.torch_threads}; load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
+        f"task {task}, method {method}, variant {variant} ({overrides}): {trainer.num_envs} envs x"
+        f" {trainer.frames_per_batch // trainer.num_envs} steps = {trainer.frames_per_batch} frames per batch,"
+        f" {trainer.num_epochs} epochs x {num_minibatches(cfg)} minibatches of {trainer.mini_batch_size},"
+        f" {list(model.hidden_sizes)} {model.activation}, torch threads {trainer.torch_threads};"
+        f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )
     rows = [*parts.items(), ("floor = physics + loss steps", floor), ("end to end (train)", end_to_end)]
     # physics and the policy's forward pass are inside collection
@@ -153,6 +181,48 @@ def main() -> None:
         rate = 1e3 * trainer.frames_per_batch / milliseconds if milliseconds > 0 else float("nan")
         print(f"  {name:42s} {milliseconds:9.1f} {rate:9.0f} {milliseconds / end_to_end:13.0%}")
     print(f"  end-to-end CPU time: {cpu_ms_per_frame:.3f} ms per frame (all threads)")
+    return floor, end_to_end
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", required=True)
+    parser.add_argument("--method", default="ppo")
+    parser.add_argument("--batches", type=int, default=10, help="timed batches of the end-to-end run")
+    parser.add_argument("--warmup", type=int, default=2, help="batches of the end-to-end run left out of its timing")
+    parser.add_argument("--repeats", type=int, default=5, help="repeats of each part (loss steps: 10x as many)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--variants",
+        default="default",
+        help=f"comma-separated variants measured in turn, each a name or names joined by +: {', '.join(VARIANTS)}",
+    )
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. trainer.torch_threads=2")
+    args = parser.parse_args()
+    variants = [variant.strip() for variant in args.variants.split(",") if variant.strip()]
+    for variant in variants:  # every name checked before the first (minutes long) measurement
+        try:
+            variant_overrides(variant)
+        except ValueError as error:
+            parser.error(str(error))
+    overrides = [f"task={args.task}", f"method={args.method}", f"seed={args.seed}", *args.overrides]
+    overrides += ["trainer.progress_bar=false", "checkpoint.interval=0", "logger.backends=[csv]"]
+    results = {}
+    for variant in variants:
+        with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+            cfg = compose(config_name="config", overrides=[*overrides, *variant_overrides(variant)])
+        results[variant] = (*measure(cfg, args.task, args.method, variant, args), cfg.trainer.frames_per_batch)
+    if len(results) > 1:  # one line per variant, side by side; "of floor": the floor over the end-to-end time
+        first = variants[0]
+        print(f"variants side by side (floor / end to end: of its own floor, and of {first}'s)")
+        print(
+            f"  {'variant':34s} {'end to end ms':>13s} {'frames/s':>9s} {'floor ms':>9s} {'of floor':>9s} {'of first':>9s}"
+        )
+        for variant, (floor, end_to_end, frames) in results.items():
+            print(
+                f"  {variant:34s} {end_to_end:13.1f} {1e3 * frames / end_to_end:9.0f} {floor:9.1f}"
+                f" {floor / end_to_end:9.0%} {results[first][0] / end_to_end:9.0%}"
+            )
 
 
 if __name__ == "__main__":

@@ -92,6 +92,29 @@ def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, caps
     assert all(value > 0 for name, value in ms.items() if not name.startswith("rest"))
 
 
+def test_bench_floor_measures_variants_side_by_side_in_one_process(monkeypatch, capsys):
+    argv = ["--task", "ant_v5", "--batches", "1", "--warmup", "1", "--repeats", "1", "--variants", "default,once"]
+    argv += ["trainer.num_envs=2", "trainer.frames_per_batch=16", "trainer.mini_batch_size=8", "trainer.num_epochs=2"]
+    out = run_script("throughput/bench_floor.py", [*argv, "model.hidden_sizes=[8]"], monkeypatch, capsys)
+    headers = [line for line in out.splitlines() if line.startswith("task ant_v5")]
+    assert [header.split(":")[0] for header in headers] == [
+        "task ant_v5, method ppo, variant default (no overrides)",
+        "task ant_v5, method ppo, variant once (ppo.advantage_pass=once_per_batch)",
+    ]
+    tables = out.split("task ant_v5")[1:]
+    assert "advantages (x 2 epochs)" in tables[0] and "advantages (x 1 pass)" in tables[1]  # the estimator's passes
+    summary = out.split("variants side by side")[1].splitlines()[2:]
+    assert [row.split()[0] for row in summary] == ["default", "once"]
+    assert all(row.endswith("%") for row in summary)
+
+
+def test_bench_floor_refuses_an_unknown_variant_before_measuring(monkeypatch, capsys):
+    with pytest.raises(SystemExit) as stop:
+        run_script("throughput/bench_floor.py", ["--task", "ant_v5", "--variants", "default,turbo"], monkeypatch, capsys)
+    assert stop.value.code == 2
+    assert "unknown variant 'turbo'; known: default, once, compile, threads1, threads2" in capsys.readouterr().err
+
+
 def test_bench_env_throughput_runs(monkeypatch, capsys):
     argv = ["--num-envs", "2", "--steps", "4", "--threads", "1", "--rounds", "1", "--tasks", "ant"]
     out = run_script("throughput/bench_env_throughput.py", argv, monkeypatch, capsys)

@@ -5,7 +5,8 @@ In the order it runs (the section comments in :func:`learn` carry these numbers)
     1. collect       the Collector steps N envs x T steps with the current policy              -> batch [N, T]
                      (the env's RewardComponents wrote ("next", "reward", c), c = 1..K); FiniteGuard stops on NaN
     2. returns       reward/<c> (mean per step), return/<c> (episodes that ended), the scheduler's statistics
-    3. PPO epochs    per epoch: advantages (WeightedMultiGAE with the current critic), value targets standardised
+    3. PPO epochs    per epoch (advantage_pass="every_epoch"; "once_per_batch": before the first epoch only):
+                     advantages (WeightedMultiGAE with the current critic), value targets standardised
                      -> minibatches -> HybridClipPPOLoss -> KL and learning rate -> Adam step, gradient clipped
     4. normalisers   the observation statistics absorb the batch just trained on; the learning rate anneals;
                      the collector gets the new policy
@@ -34,10 +35,15 @@ from torch import nn
 from torchrl_ahrs.rewards.auxiliary import AuxiliaryRewardError
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
 from torchrl_ahrs.training.models import RunningNorm
+from torchrl_ahrs.training.updates import check_finite_update, epoch_means
 
 # what the loss (and the KL between the collecting and the current policy) reads from a minibatch, besides
 # the loss's own in_keys; the batch also holds "next", episode accumulators... that are never gathered
 MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
+# when the advantages and value targets are estimated: before every PPO epoch with the critic as it is then
+# (TorchRL's sota PPO; "What matters in on-policy RL" recommends it), or once per batch before the first epoch
+# with the collecting critic (CleanRL, rsl_rl, rl_games): E - 1 fewer critic passes over the batch
+ADVANTAGE_PASSES = ("every_epoch", "once_per_batch")
 
 
 @dataclass(frozen=True)
@@ -46,7 +52,11 @@ class LoopSettings:
 
     ``anneal_lr``: ``lr_i = lr_0 (1 - frames_i / total_frames)`` after every iteration; ``kl_target``: instead,
     :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
-    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped).
+    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped); ``advantage_pass``:
+    ``"every_epoch"`` re-estimates advantages and value targets with the current critic before each epoch,
+    ``"once_per_batch"`` only before the first (the same update with one epoch; a value clip then clips around
+    the collecting critic's values, as rl_games' does, not the epoch's); ``compile``: the loss's forward
+    (actor, critic and the PPO terms) runs through ``torch.compile`` (inductor), compiled at the first minibatch.
 
     Example:
         >>> LoopSettings(total_frames=4096, num_minibatches=0)
@@ -61,6 +71,8 @@ class LoopSettings:
     max_grad_norm: float | None = 1.0
     anneal_lr: bool = True
     kl_target: float | None = None
+    advantage_pass: str = "every_epoch"
+    compile: bool = False
 
     def __post_init__(self):
         for name in ("total_frames", "num_epochs", "num_minibatches"):
@@ -68,6 +80,10 @@ class LoopSettings:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.kl_target is not None and self.kl_target <= 0:
             raise ValueError(f"the KL target must be positive, got {self.kl_target}")
+        if self.advantage_pass not in ADVANTAGE_PASSES:
+            raise ValueError(
+                f"advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {self.advantage_pass!r}"
+            )
 
 
 @dataclass
@@ -164,6 +180,9 @@ def learn(run: TrainingRun) -> dict[str, float]:
     if settings.kl_target is not None and not getattr(run.loss, "kl", False):
         raise ValueError("LoopSettings.kl_target reads the loss's 'kl' output: build HybridClipPPOLoss(..., kl=True)")
     guard = FiniteGuard(components)
+    # the loss's forward through inductor (actor, critic and the PPO terms, and so their backward); the module
+    # itself stays the one the optimiser, the checkpoint and the collector know
+    loss_forward = torch.compile(run.loss) if settings.compile else run.loss
     latest: dict[str, float] = {}
     last_time = time.perf_counter()
     try:
@@ -182,21 +201,23 @@ def learn(run: TrainingRun) -> dict[str, float]:
             metrics.update(run.scheduler.observe_batch(batch))  # into its statistics; weight/<c> in force
 
             # ---- 3. PPO epochs ------------------------------------------------------------------------------
-            average: TensorDictBase | None = None
+            last_epoch_losses: list[TensorDictBase] = []  # train/<term> is the last epoch's mean over its minibatches
             for epoch in range(settings.num_epochs):
-                with torch.no_grad():
-                    # advantages with the current critic: A_k and value_target [N, T, K], advantage = Σ_k w_k A_k
-                    estimator(batch)
-                    selected = batch.select(*keys, strict=False)  # shares the tensors; the sets below stay out of batch
-                    if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
-                        targets = selected.get("value_target")
-                        if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
-                            run.value_norm.update(targets)
-                        selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
-                        selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
-                for j, minibatch in enumerate(epoch_minibatches(selected, settings.num_minibatches, run.generator)):
+                if epoch == 0 or settings.advantage_pass == "every_epoch":  # once_per_batch: epoch 0's serve all
+                    with torch.no_grad():
+                        # advantages with the current critic: A_k, value_target [N, T, K], advantage = Σ_k w_k A_k
+                        estimator(batch)
+                        selected = batch.select(*keys, strict=False)  # shares the tensors; the sets stay out of batch
+                        if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
+                            targets = selected.get("value_target")
+                            if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
+                                run.value_norm.update(targets)
+                            selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
+                            selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
+                logged = epoch == settings.num_epochs - 1
+                for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator):
                     progress.optim_steps += 1
-                    losses = run.loss(minibatch)
+                    losses = loss_forward(minibatch)
                     # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
                     # collecting to the current policy (rsl_rl's adaptive rule)
                     if settings.kl_target is not None:
@@ -205,26 +226,27 @@ def learn(run: TrainingRun) -> dict[str, float]:
                         )
                         for group in optimizer.param_groups:
                             group["lr"] = lr
-                        losses.set("lr", torch.tensor(lr))
+                        if logged:
+                            losses.set("lr", torch.tensor(lr))
                     # step: the sum of the loss_* terms, the gradient's global norm clipped to max_grad_norm; a
-                    # non-finite loss or gradient stops the run before the step could write NaN into the networks
+                    # non-finite loss or gradient stops the run before the step could write NaN into the networks.
+                    # One test covers both (a sum of finite numbers is finite unless it overflows: then the
+                    # function finds both finite and the step goes on); the loss is tested apart because a
+                    # finite gradient does not make it finite (an inf squared error has a finite slope)
                     total = sum(value for key, value in losses.items() if key.startswith("loss_"))
-                    check_finite_update(total, losses, minibatch, components, progress.optim_steps)
                     total.backward()
-                    grad_norm = nn.utils.clip_grad_norm_(params, max_norm).detach()
-                    check_finite_update(grad_norm, losses, minibatch, components, progress.optim_steps, "gradient")
-                    losses.set("grad_norm", grad_norm)
+                    grad_norm = nn.utils.clip_grad_norm_(params, max_norm)  # computed without grad
+                    if not bool(torch.isfinite(total.detach() + grad_norm)):
+                        check_finite_update(total, losses, minibatch, components, progress.optim_steps)
+                        check_finite_update(grad_norm, losses, minibatch, components, progress.optim_steps, "gradient")
                     optimizer.step()
                     optimizer.zero_grad()
-                    losses = losses.detach()
-                    # train/<term>: a running mean restarted every epoch, so the last epoch's mean is logged (as
-                    # TorchRL's Trainer, which ran this loop before, averaged; so earlier runs' numbers compare)
-                    if j == 0 or average is None:
-                        average = losses
-                    else:  # mean_n = mean_{n-1} (n - 1) / n + x_n / n
-                        average = average.apply(lambda mean, x, n=j + 1: mean * (n - 1) / n + x / n, losses)
-            if average is not None:
-                metrics.update({f"train/{key}": v.mean().item() for key, v in average.items() if v.numel()})
+                    if logged:
+                        losses.set("grad_norm", grad_norm)
+                        last_epoch_losses.append(losses)
+            # train/<term>: the last epoch's mean (as TorchRL's Trainer, which ran this loop before, averaged; so
+            # earlier runs' numbers compare), computed once instead of a TensorDict running mean per minibatch
+            metrics.update(epoch_means(last_epoch_losses))
             shares = estimator.shares.tolist()  # w_k std(A'_k) / Σ_j w_j std(A'_j) of the last epoch's advantages
             metrics.update({f"share/{name}": share for name, share in zip(components, shares, strict=True)})
 
@@ -270,47 +292,6 @@ def learn(run: TrainingRun) -> dict[str, float]:
     finally:
         run.collector.shutdown()
     return latest
-
-
-def check_finite_update(
-    value: torch.Tensor,
-    losses: TensorDictBase,
-    minibatch: TensorDictBase,
-    components: Sequence[str],
-    optim_step: int,
-    what: str = "loss",
-) -> None:
-    """Raises ``FloatingPointError`` (one line naming the loss terms and the reward components to blame) when
-    ``value`` (the summed loss, or the gradient's global norm) is not finite.
-
-    A finite but huge reward (an auxiliary reward of 1e30) passes every check of the batch and still turns the
-    critic's loss into NaN; the line names each component whose value targets are non-finite or beyond 1e15.
-
-    Example:
-        >>> from tensordict import TensorDict
-        >>> losses = TensorDict({"loss_critic": torch.tensor(float("nan")), "loss_objective": torch.tensor(0.1)})
-        >>> minibatch = TensorDict({"value_target": torch.tensor([[1.0, 1e30]])}, [1])
-        >>> check_finite_update(losses["loss_critic"], losses, minibatch, ["pos", "aux"], 7)
-        Traceback (most recent call last):
-        ...
-        FloatingPointError: non-finite loss at optimiser step 7 in loss_critic (reward component 'aux': value targets up to 1e+30); update not applied, training stopped
-    """
-    if bool(torch.isfinite(value).all()):
-        return
-    terms = [key for key, term in losses.items() if key.startswith("loss_") and not bool(torch.isfinite(term).all())]
-    blamed = []
-    targets = minibatch.get("value_target", None)
-    if targets is not None and targets.shape[-1] == len(components):
-        magnitude = targets.detach().abs().reshape(-1, len(components)).nan_to_num(nan=float("inf")).amax(0)  # [K]
-        blamed = [
-            f"{name!r}: value targets up to {float(m):.0e}" for name, m in zip(components, magnitude, strict=True)
-        ]
-        blamed = [text for text, m in zip(blamed, magnitude, strict=True) if not m < 1e15]
-    where = f" in {', '.join(terms)}" if terms else ""
-    why = f" (reward component {'; '.join(blamed)})" if blamed else ""
-    raise FloatingPointError(
-        f"non-finite {what} at optimiser step {optim_step}{where}{why}; update not applied, training stopped"
-    )
 
 
 def adaptive_kl_lr(

@@ -15,6 +15,7 @@ from torchrl_ahrs.app.shared.redaction import is_secret_key
 from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
+from torchrl_ahrs.training.loop import ADVANTAGE_PASSES
 from torchrl_ahrs.training.models import DISTRIBUTIONS
 
 __all__ = [
@@ -129,6 +130,12 @@ def validate_config(cfg: DictConfig) -> None:
         value = ppo.get(name)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int | float) or value <= 0):
             raise ConfigError(f"ppo.{name} must be a positive number or null, got {value!r}")
+    if ppo.get("advantage_pass", "every_epoch") not in ADVANTAGE_PASSES:
+        raise ConfigError(
+            f"ppo.advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {ppo.advantage_pass!r}"
+        )
+    if not isinstance(trainer.get("compile", False), bool):
+        raise ConfigError(f"trainer.compile must be true or false, got {trainer.compile!r}")
     components = resolve_components(cfg)
     known = set(cfg.task.components) | {"total"} | aux_leaves(cfg.method.get("auxiliary"))
     unknown = [name for name in components if name not in known]

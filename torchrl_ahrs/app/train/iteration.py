@@ -123,6 +123,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         max_grad_norm=cfg.trainer.max_grad_norm,
         anneal_lr=bool(cfg.trainer.anneal_lr),
         kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
+        advantage_pass=cfg.ppo.get("advantage_pass", "every_epoch"),  # a run saved before the key: every epoch
+        compile=bool(cfg.trainer.get("compile", False)),
     )
     # the run's state: one entry per owner (listed in app/train/checkpoint.py); saved after the iteration's last step
     registry: dict[str, Any] = {

@@ -1,0 +1,136 @@
+"""The training loop's throughput options on real runs (point_reach, MuJoCo): advantages once per batch
+(``ppo.advantage_pass``), the loss through ``torch.compile`` (``trainer.compile``), and the one finiteness test per
+minibatch that still refuses a non-finite loss whose gradient is finite."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra import compose, initialize_config_module
+
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.iteration import train
+from torchrl_ahrs.app.train.runs import read_scalar
+from torchrl_ahrs.training.loop import LoopSettings
+from torchrl_ahrs.value import WeightedMultiGAE
+
+FRAMES, ITERATIONS = 64, 3
+
+
+def make_cfg(*overrides):
+    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+TINY = [
+    "task=point_reach",
+    "task.max_episode_steps=6",
+    "method=hdppo",
+    "trainer.num_envs=8",
+    f"trainer.frames_per_batch={FRAMES}",
+    "trainer.mini_batch_size=32",
+    f"trainer.total_frames={ITERATIONS * FRAMES}",
+    "trainer.progress_bar=false",
+    "model.hidden_sizes=[16]",
+    "scheduler.interval=1",
+    "logger.backends=[csv]",
+]
+
+
+def run_once(tmp_path, name, *overrides):
+    """Trains TINY + ``overrides`` into ``tmp_path / name``; returns the run directory and its checkpoint."""
+    run = RunDirectory(tmp_path / name)
+    train(make_cfg(*TINY, *overrides), run.path)
+    return run, torch.load(run.checkpoint, weights_only=False)
+
+
+def train_scalars(run: RunDirectory) -> dict[str, list[float]]:
+    """Every ``train/*`` curve of a run (its values, one per iteration)."""
+    return {path.stem: read_scalar(path)[1].tolist() for path in sorted((run.scalars / "train").glob("*.csv"))}
+
+
+def counting_estimates(monkeypatch) -> list[int]:
+    """Counts the calls of every WeightedMultiGAE's forward (each call appends the batch's number of frames)."""
+    calls: list[int] = []
+    forward = WeightedMultiGAE.forward
+
+    def counted(self, tensordict, **kwargs):
+        calls.append(tensordict.numel())
+        return forward(self, tensordict, **kwargs)
+
+    monkeypatch.setattr(WeightedMultiGAE, "forward", counted)
+    return calls
+
+
+def test_with_one_epoch_both_advantage_passes_give_the_same_run(tmp_path):
+    every, every_state = run_once(tmp_path, "every", "trainer.num_epochs=1")
+    once, once_state = run_once(tmp_path, "once", "trainer.num_epochs=1", "ppo.advantage_pass=once_per_batch")
+    for part in ("actor", "critic", "estimator", "optimizer"):
+        assert str(every_state[part]) == str(once_state[part]), part  # bit for bit (str: nested dicts of tensors)
+    assert train_scalars(every) == train_scalars(once)
+
+
+def test_once_per_batch_estimates_once_per_batch_and_its_statistics_absorb_each_batch_once(tmp_path, monkeypatch):
+    calls = counting_estimates(monkeypatch)
+    _, every_state = run_once(tmp_path, "every", "trainer.num_epochs=3")
+    assert calls == [FRAMES] * (3 * ITERATIONS)  # the default: one estimate per epoch
+    calls.clear()
+    _, once_state = run_once(tmp_path, "once", "trainer.num_epochs=3", "ppo.advantage_pass=once_per_batch")
+    assert calls == [FRAMES] * ITERATIONS
+    for state in (every_state, once_state):  # the value-target statistics saw every frame exactly once
+        counts = state["estimator"]["value_norm.count"]
+        assert counts.flatten().tolist() == [float(ITERATIONS * FRAMES)] * counts.numel()
+    # with three epochs the two passes train on different advantages after the first: different networks
+    actor_every, actor_once = every_state["actor"], once_state["actor"]
+    assert any(not torch.equal(actor_every[key], actor_once[key]) for key in actor_every)
+
+
+def test_an_unknown_advantage_pass_is_refused_in_one_line(tmp_path):
+    with pytest.raises(ConfigError, match="ppo.advantage_pass must be one of every_epoch, once_per_batch, got 'twice'"):
+        train(make_cfg(*TINY, "ppo.advantage_pass=twice"), tmp_path / "run")
+    assert not (tmp_path / "run" / "config.yaml").exists()  # refused before anything was written
+    with pytest.raises(ValueError, match="advantage_pass must be one of"):
+        LoopSettings(total_frames=64, advantage_pass="per_minibatch")
+    with pytest.raises(ConfigError, match="trainer.compile must be true or false"):
+        train(make_cfg(*TINY, "trainer.compile=yes"), tmp_path / "run")
+
+
+def test_a_loss_that_overflows_under_a_finite_gradient_is_refused_naming_it(tmp_path, monkeypatch):
+    # ctrl_cost 4e18 without value normalisation: squared errors of ~1e19 targets overflow float32 (the critic loss
+    # is inf) while the gradient, linear in the error, stays finite (~8e18): testing the clipped norm alone would
+    # let the step through, so the loop tests the loss too
+    norms: list[float] = []
+    clip = torch.nn.utils.clip_grad_norm_
+
+    def recorded_clip(*args, **kwargs):
+        norm = clip(*args, **kwargs)
+        norms.append(float(norm))
+        return norm
+
+    monkeypatch.setattr(torch.nn.utils, "clip_grad_norm_", recorded_clip)
+    cfg = make_cfg(*TINY, "method=ppo", "task.ctrl_cost=4e18", "ppo.value_norm=null", "trainer.num_epochs=2")
+    with pytest.raises(FloatingPointError, match=r"non-finite loss at optimiser step 1 in loss_critic \(reward comp"):
+        train(cfg, tmp_path / "run")
+    assert len(norms) == 1 and torch.isfinite(torch.tensor(norms[0])), norms
+
+
+@pytest.mark.slow
+def test_a_compiled_loss_trains_like_the_eager_one(tmp_path):
+    # inductor generates and builds C++ for the loss's forward and backward at the first minibatch (seconds to a
+    # minute, then cached); the kernels fuse and reorder float operations, so the runs agree to float tolerance
+    from torch._dynamo.utils import counters  # what torch's own tests read to see that dynamo compiled
+
+    eager, eager_state = run_once(tmp_path, "eager", "trainer.num_epochs=2")
+    counters.clear()
+    compiled, compiled_state = run_once(tmp_path, "compiled", "trainer.num_epochs=2", "trainer.compile=true")
+    assert counters["stats"]["unique_graphs"] >= 1  # the loss ran through dynamo, not eagerly
+    for part in ("actor", "critic"):
+        for key, value in eager_state[part].items():
+            torch.testing.assert_close(compiled_state[part][key], value, rtol=1e-4, atol=1e-5, msg=f"{part} {key}")
+    eager_curves, compiled_curves = train_scalars(eager), train_scalars(compiled)
+    assert eager_curves.keys() == compiled_curves.keys()
+    for name, values in eager_curves.items():
+        # explained variance divides by the targets' variance over a 32-transition minibatch: looser
+        tolerance = 1e-2 if name == "explained_variance" else 1e-4
+        torch.testing.assert_close(torch.tensor(compiled_curves[name]), torch.tensor(values), rtol=tolerance, atol=1e-5)
