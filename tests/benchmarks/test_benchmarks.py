@@ -110,7 +110,9 @@ def test_bench_floor_measures_variants_side_by_side_in_one_process(monkeypatch, 
 
 def test_bench_floor_refuses_an_unknown_variant_before_measuring(monkeypatch, capsys):
     with pytest.raises(SystemExit) as stop:
-        run_script("throughput/bench_floor.py", ["--task", "ant_v5", "--variants", "default,turbo"], monkeypatch, capsys)
+        run_script(
+            "throughput/bench_floor.py", ["--task", "ant_v5", "--variants", "default,turbo"], monkeypatch, capsys
+        )
     assert stop.value.code == 2
     assert "unknown variant 'turbo'; known: default, once, compile, threads1, threads2" in capsys.readouterr().err
 
