@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from hydra import compose, initialize_config_module
+from conftest import make_cfg
 
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
@@ -15,11 +15,6 @@ from torchrl_ahrs.app.train.runs import read_scalar
 
 FRAMES, ITERATIONS, EPOCHS = 64, 3, 3
 COMPONENTS = ["distance", "arrival", "ctrl"]
-
-
-def make_cfg(*overrides):
-    with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
 
 
 TINY = [
