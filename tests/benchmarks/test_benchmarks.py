@@ -179,3 +179,14 @@ def test_bench_mjx_runs(monkeypatch, capsys):
         if line.startswith("| 2 ")
     ]
     assert [row.split("|")[2].strip() for row in rows] == ["cpu", "mjx"]
+
+
+def test_curve_bins_averages_per_bin_and_counts_episodes_over_all_batches(tmp_path, monkeypatch, capsys):
+    """Oracle: hand-written CSVs. Bin 0 holds batches at 100 and 200 frames (reward 2e-3 and 4e-3, one episode
+    ended in one of them: 0.5 per batch); bin 1000 one batch (6e-3, three episodes)."""
+    scalars = tmp_path / "run" / "metrics" / "scalars"
+    (scalars / "reward").mkdir(parents=True)
+    (scalars / "reward" / "tracking_lin_vel.csv").write_text("step,value\n100,0.002\n200,0.004\n1000,0.006\n")
+    (scalars / "episodes.csv").write_text("step,value\n200,1.0\n1000,3.0\n")
+    out = run_script("learning/curve_bins.py", [str(tmp_path / "run"), "--bin", "1000"], monkeypatch, capsys)
+    assert out.strip() == "run: 0.0M:  3.00 eps/batch  0.5 | 0.0M:  6.00 eps/batch  3.0"

@@ -1,0 +1,52 @@
+"""A run's training curve in frame bins, read from its CSV scalars: where a Cassie probe leaves standing still.
+
+    python benchmarks/learning/curve_bins.py benchmarks/results/issue26_probes/cassie_kl002_128x12_s*
+
+prints, per run and per bin of ``--bin`` frames (default 0.5M), the mean per-step reward of ``--term``
+(default ``tracking_lin_vel``, in 10^-3; Cassie collects ~3.9 standing still and 20 following every command)
+and the episodes ended per batch (fewer = longer episodes). The RESULTS.md Cassie tables quote these numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+
+def read_scalar(run_dir: Path, name: str) -> list[tuple[int, float]]:
+    """``(frames, value)`` rows of ``metrics/scalars/<name>.csv`` (TorchRL's CSVLogger layout); [] if absent."""
+    path = run_dir / "metrics" / "scalars" / f"{name}.csv"
+    if not path.exists():
+        return []
+    with path.open() as file:
+        return [(int(row["step"]), float(row["value"])) for row in csv.DictReader(file)]
+
+
+def bin_means(rows: list[tuple[int, float]], width: int) -> dict[int, float]:
+    """Mean value per bin ``[b * width, (b + 1) * width)``, keyed by the bin's first frame."""
+    sums: dict[int, list[float]] = {}
+    for frames, value in rows:
+        sums.setdefault(frames // width * width, []).append(value)
+    return {start: sum(values) / len(values) for start, values in sorted(sums.items())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--term", default="tracking_lin_vel")
+    parser.add_argument("--bin", type=int, default=500_000)
+    args = parser.parse_args()
+    for run_dir in args.runs:
+        term_rows = read_scalar(run_dir, f"reward/{args.term}")  # one row per batch
+        ended_rows = read_scalar(run_dir, "episodes")  # a row only for batches where an episode ended
+        cells = []
+        for start, value in bin_means(term_rows, args.bin).items():
+            batches = sum(1 for frames, _ in term_rows if start <= frames < start + args.bin)
+            ended = sum(count for frames, count in ended_rows if start <= frames < start + args.bin)
+            cells.append(f"{start / 1e6:.1f}M: {value * 1e3:5.2f} eps/batch {ended / batches:4.1f}")
+        print(f"{run_dir.name}: " + " | ".join(cells))
+
+
+if __name__ == "__main__":
+    main()
