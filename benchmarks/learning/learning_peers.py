@@ -155,14 +155,14 @@ def evaluate_policy(task: str, policy: Policy, episodes: int = EVAL_EPISODES, se
     """``policy`` on our ``task`` env as ``python -m torchrl_ahrs.evaluate`` runs ours: ``episodes`` envs seeded
     ``seed``, each one's first episode, under ``ExplorationType.DETERMINISTIC``; every task component and
     ``total`` reported, with the task's step metrics (Cassie's velocity errors). Returns the JSON summary."""
-    from torchrl_ahrs.app.shared.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_settings
     from torchrl_ahrs.envs.registry import make_env
     from torchrl_ahrs.evaluation.episodes import run_episodes, summarize
     from torchrl_ahrs.evaluation.task_metrics import episode_metrics, step_probe
     from torchrl_ahrs.rewards.components import TOTAL
 
-    task_cfg = load_task_config(task)
-    components = [c for c in task_cfg["components"] if c != TOTAL] + [TOTAL]
+    task_cfg = load_task_settings(task)
+    components = [c for c in task_cfg.components if c != TOTAL] + [TOTAL]
     env = make_env(task_cfg, episodes, seed, components=components)
     try:
         results = run_episodes(env, policy, components, True, step_probe(task))
@@ -259,13 +259,13 @@ def train_rsl_rl(task: str, seed: int, budget: Budget, curve: CurveWriter) -> tu
     from rsl_rl_adapter import RslRlVecEnv, StopTraining
     from tensordict import TensorDict
 
-    from torchrl_ahrs.app.shared.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_settings
     from torchrl_ahrs.envs.registry import make_env
 
     torch.manual_seed(seed)
     settings = json.loads(json.dumps(LEGGED_GYM_CASSIE_PPO))  # a deep copy: the runner writes into it
     num_envs, steps = settings.pop("num_envs"), settings["num_steps_per_env"]
-    env = make_env(load_task_config(task), num_envs, seed, components=["total"])
+    env = make_env(load_task_settings(task), num_envs, seed, components=["total"])
     vec_env = RslRlVecEnv(env, steps, on_rollout=curve.add, clock=budget.elapsed, should_stop=budget.out_of_time)
     runner = OnPolicyRunner(vec_env, json.loads(json.dumps(settings)), log_dir=None, device="cpu")
     iterations, reason = 0, "frames"

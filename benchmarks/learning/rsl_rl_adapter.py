@@ -41,8 +41,8 @@ class RslRlVecEnv(VecEnv):
 
     Example:
         >>> from torchrl_ahrs.envs.registry import make_env
-        >>> from torchrl_ahrs.app.shared.settings import load_task_config
-        >>> vec = RslRlVecEnv(make_env(load_task_config("point_reach"), 2, components=["total"]), steps_per_rollout=4)
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> vec = RslRlVecEnv(make_env(load_task_settings("point_reach"), 2, components=["total"]), steps_per_rollout=4)
         >>> obs, rewards, dones, extras = vec.step(torch.zeros(2, vec.num_actions))
         >>> obs["policy"].shape, rewards.shape, dones.dtype, extras["time_outs"].shape
         (torch.Size([2, 6]), torch.Size([2]), torch.int64, torch.Size([2]))

@@ -81,14 +81,14 @@ def main() -> None:
     print(f"parity Ant-v5  ours (BatchedMujocoEnv) {ours[0]:9.0f} steps/s  {ours[1]:6.1f} CPU us/step")
     print(f"parity Ant-v5  EnvPool 1.2.5           {pool[0]:9.0f} steps/s  {pool[1]:6.1f} CPU us/step")
     print(f"ratio ours / EnvPool                   {ours[0] / pool[0]:9.2f}x  (CPU per step: {ours[1] / pool[1]:.2f}x)")
-    from torchrl_ahrs.app.shared.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_settings
     from torchrl_ahrs.envs.registry import _BUILDERS, get_builder
 
     for task in args.tasks:
         if task not in _BUILDERS:
             print(f"task {task:12s} not registered")
             continue
-        cfg = load_task_config(task, [f"++task.num_threads={threads}"])
+        cfg = load_task_settings(task, [f"++task.num_threads={threads}"])
         env = get_builder(task)(cfg, n, 0, "cpu")
         results = [time_torchrl_env(env, args.steps) for _ in range(args.rounds)]
         best, cpu = max(r[0] for r in results), min(r[1] for r in results)

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torchrl.collectors import Collector
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.envs.registry import make_env
 
 TASKS = [
@@ -35,7 +35,7 @@ def bench_task(task: str, num_envs: int, steps: int) -> dict[str, float]:
     """``{"raw": ..., "rollout": ..., "collector": ...}`` in steps/s for one task."""
     import envpool
 
-    cfg = load_task_config(task)
+    cfg = load_task_settings(task)
     raw = envpool.make(cfg.env_id, env_type="gymnasium", num_envs=num_envs, seed=0)
     raw.reset()
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, num_envs, *raw.action_space.shape))

@@ -22,7 +22,7 @@ import time
 import torch
 from torchrl.collectors import Collector
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
@@ -47,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(0)
-    env = make_env(load_task_config("ant_v5"), 64, 0, components=["total"])
+    env = make_env(load_task_settings("ant_v5"), 64, 0, components=["total"])
     obs_dim = env.observation_spec["observation"].shape[-1]
     norm = RunningNorm(obs_dim)
     actor = build_actor(norm, obs_dim, env.full_action_spec[env.action_key], args.hidden)

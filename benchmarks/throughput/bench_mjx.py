@@ -28,7 +28,7 @@ from bench_env_throughput import time_torchrl_env
 from bench_pipeline import TimedCollector, rates
 from hydra import compose, initialize_config_module
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.envs.registry import make_env, simulation_device
 
 
@@ -37,8 +37,8 @@ def env_rate(
 ) -> tuple[float, float, float]:
     """(env steps/s, CPU µs per env step, seconds to build the env and take its first step)."""
     start = time.perf_counter()
-    task_cfg = load_task_config(task, [f"task.backend={backend}", f"task.num_threads={threads}"])
-    env = make_env(task_cfg, num_envs, 0, device or simulation_device(task_cfg))
+    task_cfg = load_task_settings(task, [f"task.backend={backend}", f"task.num_threads={threads}"])
+    env = make_env(task_cfg, num_envs, 0, device or simulation_device(task_cfg.backend))
     env.rand_step(env.reset())  # builds, resets and compiles (MJX) before the clock starts
     first = time.perf_counter() - start
     rate, cpu_us = time_torchrl_env(env, steps, warmup=2)

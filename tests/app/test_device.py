@@ -67,7 +67,7 @@ def test_mjx_environments_follow_the_learner(monkeypatch):
     are built on the learner's device: the simulation's state never leaves it."""
     import torchrl_ahrs.envs.registry as registry
 
-    monkeypatch.setattr(registry, "simulation_device", lambda task_cfg: torch.device("cuda:0"))
+    monkeypatch.setattr(registry, "simulation_device", lambda backend: torch.device("cuda:0"))
     monkeypatch.setattr("torchrl_ahrs.app.train.build.simulation_device", registry.simulation_device)
     cuda = torch.device("cuda:0")
     mjx = make_cfg("task=quadcopter", "task.backend=mjx")

@@ -77,6 +77,13 @@ def test_the_real_command_line_refuses_a_plus_key(tmp_path):
     assert_one_line_error(result, "error: +trainer.total_frame is not a key of the shipped config (did you mean ")
 
 
+def test_a_key_another_task_ships_is_refused_by_this_tasks_settings(tmp_path, capsys, monkeypatch):
+    """``+task.jog_speed`` passes the shipped-key check (dmc_cheetah_run has it) but is no setting of point_reach:
+    one line naming the key and the task, before anything is built (it used to be ignored)."""
+    result = train_in_process(tmp_path, capsys, monkeypatch, "+task.jog_speed=3.0")
+    assert_one_line_error(result, "error: task 'point_reach': unknown key 'jog_speed'; its keys are ")
+
+
 def test_shipped_optional_keys_stay_accepted():
     """A key one option of a group ships (num_threads: several tasks) is fine with + on any option."""
     from torchrl_ahrs.app.train.preflight import check_command_line

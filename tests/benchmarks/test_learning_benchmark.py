@@ -57,14 +57,14 @@ def test_rsl_rl_adapter_reports_auto_reset_observations_time_outs_and_episode_re
         from rsl_rl_adapter import RslRlVecEnv, StopTraining
     finally:
         sys.path.remove(str(LEARNING))
-    from torchrl_ahrs.app.shared.settings import load_task_config
+    from torchrl_ahrs.app.shared.settings import load_task_settings
     from torchrl_ahrs.envs.registry import make_env
 
     rollouts = []
-    env = make_env(load_task_config("point_reach"), 3, seed=0, components=["total"])
+    env = make_env(load_task_settings("point_reach"), 3, seed=0, components=["total"])
     vec = RslRlVecEnv(env, steps_per_rollout=50, on_rollout=lambda wall, frames, r: rollouts.append((frames, r)))
     # the oracle: the same env stepped by hand, with the same actions
-    oracle = make_env(load_task_config("point_reach"), 3, seed=0, components=["total"])
+    oracle = make_env(load_task_settings("point_reach"), 3, seed=0, components=["total"])
     td = oracle.reset()
     torch.testing.assert_close(vec.get_observations()["policy"], td["observation"].float())
     generator = torch.Generator().manual_seed(0)

@@ -10,7 +10,7 @@ import torch
 from hydra import compose, initialize_config_module
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.shadow_hand_bottle_cap import (
@@ -59,7 +59,7 @@ def test_bottle_cap_components_sum_to_the_native_reward_on_both_sides_of_the_gat
 
 @pytest.mark.parametrize("task", TASKS)
 def test_env_reward_is_the_native_formula_and_the_leaves_sum_to_it(task):
-    cfg = load_task_config(task)
+    cfg = load_task_settings(task)
     env = make_env(cfg, num_envs=3, seed=0)
     check_env_specs(env)
     td = env.rollout(20, break_when_any_done=False)
@@ -134,7 +134,7 @@ def test_partial_reset_leaves_other_simulations_untouched():
 
 @pytest.mark.parametrize("task", TASKS)
 def test_same_seed_same_trajectory(task):
-    cfg = load_task_config(task)
+    cfg = load_task_settings(task)
     actions = torch.rand(8, 2, 52, generator=torch.Generator().manual_seed(0)) * 2 - 1
 
     def run(seed):

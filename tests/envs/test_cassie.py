@@ -3,6 +3,7 @@ Menagerie's Cassie, and the batched env (component sums, partial resets, determi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.envs.common import legged_rewards as lr
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.cassie import make_cassie
@@ -28,7 +29,7 @@ needs_menagerie = pytest.mark.skipif(not MENAGERIE_SCENE.exists(), reason="Menag
 
 
 def cassie_cfg(*overrides: str):
-    return load_task_config("cassie", overrides=[f"task.{o}" for o in overrides])
+    return load_task_settings("cassie", overrides=[f"task.{o}" for o in overrides])
 
 
 # ----------------------------------------------------------------------------- pure reward functions
@@ -105,7 +106,7 @@ def test_task_config_scales_are_legged_gym_cassie_and_unknown_terms_fail():
     assert dict(cfg.reward_scales) == lr.CASSIE_REWARD_SCALES  # the YAML and the code agree
     assert list(cfg.components) == list(lr.CASSIE_REWARD_SCALES)  # one component per term
     with pytest.raises(ValueError, match="nofly"):
-        make_cassie({**cfg, "reward_scales": {"nofly": 1.0}}, num_envs=1)
+        make_cassie(dataclasses.replace(cfg, reward_scales={"nofly": 1.0}), num_envs=1)
 
 
 def test_quat_rotate_inverse_matches_mujoco_and_hand_case():

@@ -6,7 +6,7 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.envs.common.snapshot import restores_episodes
 from torchrl_ahrs.envs.registry import make_env
 
@@ -24,7 +24,7 @@ def step(env, carried: TensorDictBase, actions: torch.Tensor) -> tuple[TensorDic
 
 @pytest.mark.parametrize("task", sorted(MUJOCO_TASKS))
 def test_a_loaded_twin_continues_the_episodes_exactly(task):
-    cfg = load_task_config(task, MUJOCO_TASKS[task])
+    cfg = load_task_settings(task, MUJOCO_TASKS[task])
     env = make_env(cfg, num_envs=3, seed=0)
     assert restores_episodes(env)
     dim = env.action_spec.shape[-1]
@@ -46,7 +46,7 @@ def test_a_loaded_twin_continues_the_episodes_exactly(task):
 
 def test_an_envpool_task_has_no_snapshot_and_still_loads():
     pytest.importorskip("envpool")
-    env = make_env(load_task_config("ant_v5"), num_envs=2, seed=0)
+    env = make_env(load_task_settings("ant_v5"), num_envs=2, seed=0)
     try:
         assert not restores_episodes(env)
         env.load_state_dict(env.state_dict())

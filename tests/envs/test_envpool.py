@@ -13,7 +13,7 @@ from torchrl.envs.utils import check_env_specs
 
 pytest.importorskip("envpool")
 
-from torchrl_ahrs.app.shared.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.app.shared.settings import load_task_settings  # noqa: E402
 from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv  # noqa: E402
 from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 
@@ -115,7 +115,7 @@ def test_set_seed_keeps_running_episodes_valid():
 
 
 def test_ant_v5_components_sum_to_native_reward():
-    cfg = load_task_config("ant_v5")
+    cfg = load_task_settings("ant_v5")
     env = make_env(cfg, num_envs=4, seed=0)
     torch.manual_seed(0)
     rollout = env.rollout(100, break_when_any_done=False)
@@ -159,8 +159,7 @@ def test_ant_v5_without_contact_forces_observes_and_pays_like_gymnasium():
     """``include_cfrc_ext_in_observation: false`` against gymnasium's Ant-v5 with the same option: the
     27-entry observation and the whole reward, contact cost included, step for step."""
     gym = pytest.importorskip("gymnasium")
-    cfg = load_task_config("ant_v5")
-    cfg.include_cfrc_ext_in_observation = False
+    cfg = load_task_settings("ant_v5", ["task.include_cfrc_ext_in_observation=false"])
     env = make_env(cfg, num_envs=1, seed=3)
     assert env.observation_spec["observation"].shape == (1, 27)
     check_env_specs(env)

@@ -12,12 +12,12 @@ import torch
 
 pytest.importorskip("envpool")
 
-from torchrl_ahrs.app.shared.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.app.shared.settings import load_task_settings  # noqa: E402
 from torchrl_ahrs.envs.registry import make_env  # noqa: E402
 
 
 def _rollout(task: str, steps: int = 60, num_envs: int = 4):
-    cfg = load_task_config(task)
+    cfg = load_task_settings(task)
     env = make_env(cfg, num_envs=num_envs, seed=0)
     torch.manual_seed(0)
     rollout = env.rollout(steps, break_when_any_done=False)

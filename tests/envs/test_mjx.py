@@ -25,7 +25,7 @@ import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
-from torchrl_ahrs.app.shared.settings import load_task_config  # noqa: E402
+from torchrl_ahrs.app.shared.settings import load_task_settings  # noqa: E402
 from torchrl_ahrs.envs.backends import mjx as mjx_backend  # noqa: E402
 from torchrl_ahrs.envs.registry import get_builder, make_env  # noqa: E402
 
@@ -54,7 +54,7 @@ def compilation_cache():
 def test_missing_jax_names_the_extra(monkeypatch):
     monkeypatch.setattr(mjx_backend, "mjx_available", lambda: False)
     with pytest.raises(ImportError, match=r"torchrl-ahrs\[mjx\]"):
-        make_env(load_task_config("quadcopter", ["task.backend=mjx"]), num_envs=2)
+        make_env(load_task_settings("quadcopter", ["task.backend=mjx"]), num_envs=2)
 
 
 def test_backend_selection_is_checked():
@@ -66,8 +66,8 @@ def test_backend_selection_is_checked():
 
 
 def _pair(task: str, num_envs: int = 2, seed: int = 3):
-    cpu = make_env(load_task_config(task, ["task.num_threads=1"]), num_envs, seed=seed)
-    mjx = make_env(load_task_config(task, ["task.backend=mjx"]), num_envs, seed=seed)
+    cpu = make_env(load_task_settings(task, ["task.num_threads=1"]), num_envs, seed=seed)
+    mjx = make_env(load_task_settings(task, ["task.backend=mjx"]), num_envs, seed=seed)
     return cpu, mjx
 
 
@@ -85,7 +85,7 @@ def _assert_close(mjx_td, cpu_td, components, what):
 @pytest.mark.parametrize("task", ["quadcopter", "ant", "cassie"])
 def test_parity_with_cpu_backend(task):
     cpu, mjx = _pair(task)
-    components = [*load_task_config(task).components, "total"]
+    components = [*load_task_settings(task).components, "total"]
     assert type(mjx.base_env).__name__.endswith("MjxEnv")
     assert mjx.full_reward_spec == cpu.full_reward_spec and mjx.observation_spec == cpu.observation_spec
     generator = torch.Generator().manual_seed(0)
@@ -133,7 +133,7 @@ def test_a_control_step_keeps_every_tensor_on_the_env_device(task):
     is switched without them: what ``env.to(device)`` does to the hooks' state.)"""
     import jax.numpy as jnp
 
-    env = make_env(load_task_config(task, ["task.backend=mjx"]), 2, seed=3)
+    env = make_env(load_task_settings(task, ["task.backend=mjx"]), 2, seed=3)
     env.reset()
     base = env.base_env
     base.__dict__["_device"] = torch.device("meta")
@@ -162,7 +162,7 @@ def test_a_control_step_sends_nothing_from_the_host_to_jax():
     import jax
     import jax.numpy as jnp
 
-    env = make_env(load_task_config("quadcopter", ["task.backend=mjx"]), 2, seed=3)
+    env = make_env(load_task_settings("quadcopter", ["task.backend=mjx"]), 2, seed=3)
     td = env.reset().set("action", torch.zeros(2, 4))
     with jax.transfer_guard("disallow_explicit"):
         env.step(td)
@@ -176,7 +176,7 @@ def test_a_control_step_sends_nothing_from_the_host_to_jax():
 def test_a_loaded_twin_continues_an_mjx_episode_exactly():
     """The MJX env's snapshot (every leaf of the batched mjx.Data, counters, generator, task state) is a
     complete one: a twin built with another seed and loaded continues bit for bit."""
-    cfg = load_task_config("quadcopter", ["task.backend=mjx"])
+    cfg = load_task_settings("quadcopter", ["task.backend=mjx"])
     env = make_env(cfg, 2, seed=3)
     actions = torch.rand(6, 2, 4, generator=torch.Generator().manual_seed(0)) * 2 - 1
     td = env.reset()

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_settings
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
 from torchrl_ahrs.envs.registry import make_env
 from torchrl_ahrs.envs.tasks.ant import AntEnv
@@ -189,7 +189,7 @@ def test_ant_reward_terms_match_hand_derived_values():
 
 
 def test_ant_components_sum_to_total_and_death_replaces_it():
-    cfg = load_task_config("ant")
+    cfg = load_task_settings("ant")
     env = make_env(cfg, num_envs=4, seed=1)
     rollout = env.rollout(150, break_when_any_done=False)
     reward = rollout["next", "reward"]
@@ -217,7 +217,7 @@ def test_ant_partial_reset_leaves_other_simulations_untouched():
 
 @pytest.mark.parametrize("task", ["ant", "quadcopter"])
 def test_same_seed_same_trajectory(task):
-    cfg = load_task_config(task)
+    cfg = load_task_settings(task)
     actions = torch.rand(40, 3, 8 if task == "ant" else 4, generator=torch.Generator().manual_seed(0)) * 2 - 1
 
     def run(seed):
@@ -235,7 +235,7 @@ def test_same_seed_same_trajectory(task):
 
 @pytest.mark.parametrize("task", ["ant", "quadcopter"])
 def test_task_specs_and_reward_leaves(task):
-    cfg = load_task_config(task)
+    cfg = load_task_settings(task)
     env = make_env(cfg, num_envs=3)
     check_env_specs(env)
     leaves = env.rollout(3)["next", "reward"]

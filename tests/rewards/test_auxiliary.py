@@ -14,7 +14,7 @@ from torchrl.envs.utils import check_env_specs
 
 from torchrl_ahrs.app.shared.auxiliary import collect_aux_inputs, validate_aux_file
 from torchrl_ahrs.app.shared.config import ConfigError, resolve_components, validate_config
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config, task_settings
 from torchrl_ahrs.app.train.runs import read_scalar as read_scalar_file
 from torchrl_ahrs.envs.registry import available_tasks, make_env
 from torchrl_ahrs.rewards.auxiliary import (
@@ -90,7 +90,7 @@ def test_cassie_aux_pays_for_an_upright_pelvis():
 def test_transform_writes_aux_and_total_aux_next_to_the_native_reward():
     path = shipped_aux_path("point_reach")
     env = make_env(
-        task_dict("point_reach"),
+        task_settings(task_dict("point_reach")),
         num_envs=4,
         seed=0,
         components=["distance", "arrival", "ctrl", AUX],

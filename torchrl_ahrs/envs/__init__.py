@@ -1,5 +1,6 @@
-"""Tasks: the registry, and the environment bases they are built on (imported on demand)."""
+"""Tasks: the registry, their settings records, and the environment bases they are built on (imported on demand)."""
 
-from torchrl_ahrs.envs.registry import available_tasks, get_builder, make_env, register_task
+from torchrl_ahrs.envs.registry import available_tasks, get_builder, make_env, register_task, settings_type
+from torchrl_ahrs.envs.settings import TaskSettings
 
-__all__ = ["available_tasks", "get_builder", "make_env", "register_task"]
+__all__ = ["TaskSettings", "available_tasks", "get_builder", "make_env", "register_task", "settings_type"]

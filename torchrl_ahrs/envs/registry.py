@@ -1,26 +1,29 @@
 """Task registry: a task name → a batched TorchRL environment whose reward is a component tree.
 
 A task is a YAML file in ``conf/task/`` (shipped inside the package as ``torchrl_ahrs.conf``; composed by
-``torchrl_ahrs.app.shared.settings.load_task_config``) and a builder function registered here under the same
-name. A builder takes the task config, the number of environments and a seed, and returns an ``EnvBase``
-with batch size ``[num_envs]`` that writes
+``torchrl_ahrs.app.shared.settings.load_task_config``), the frozen settings record its builder reads
+(:mod:`torchrl_ahrs.envs.settings`; ``task_settings`` in the app converts the config to it) and a builder
+function registered here under the same name. A builder takes the settings, the number of environments and a
+seed, and returns an ``EnvBase`` with batch size ``[num_envs]`` that writes
 ``("next", "reward", c)`` for each ``c`` in ``task.components`` and ``("next", "reward", "total")``.
 """
 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
+from torchrl_ahrs.envs import settings as task_records
 from torchrl_ahrs.envs.common.snapshot import BaseEnvSnapshot
+from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
 from torchrl_ahrs.rewards.components import TOTAL, ComponentRewardSum, component_reward_keys
 
-TaskBuilder = Callable[[Mapping[str, Any], int, int, str], EnvBase]
+TaskBuilder = Callable[[Any, int, int, str], EnvBase]  # (settings record, num_envs, seed, device)
 
 # name -> "module:function"; imported on first use so that optional backends load only when asked.
 _BUILDERS: dict[str, str] = {
@@ -42,6 +45,23 @@ _BUILDERS: dict[str, str] = {
 # task.backend=mjx: the same tasks stepped by MJX on JAX (the [mjx] extra); task.backend=cpu uses _BUILDERS
 _MJX_BUILDERS = dict.fromkeys(("ant", "cassie", "quadcopter"), "torchrl_ahrs.envs.tasks.mjx_tasks:make_mjx_task")
 BACKENDS = ("cpu", "mjx")
+# name -> the settings record its builder reads (torchrl_ahrs.envs.settings); the same for both backends
+_SETTINGS: dict[str, type[TaskSettings]] = {
+    "ant_v5": task_records.AntV5Settings,
+    "go1_terrain": task_records.InfoTermsSettings,
+    "leap_cube": task_records.InfoTermsSettings,
+    "humanoid": task_records.InfoTermsSettings,
+    "shadow_hand": task_records.ShadowHandSettings,
+    "shadow_hand_scissors": task_records.ScissorsSettings,
+    "shadow_hand_bottle_cap": task_records.BottleCapSettings,
+    "dmc_walker_walk": task_records.DmcSettings,
+    "dmc_quadruped_run": task_records.DmcSettings,
+    "dmc_cheetah_run": task_records.CheetahRunSettings,
+    "ant": task_records.AntSettings,
+    "quadcopter": task_records.QuadcopterSettings,
+    "cassie": task_records.CassieSettings,
+    "point_reach": task_records.PointReachSettings,
+}
 
 
 # backends whose environments compute on their torch device (the hooks' state follows env.to(device));
@@ -49,25 +69,34 @@ BACKENDS = ("cpu", "mjx")
 DEVICE_RESIDENT_BACKENDS = ("mjx",)
 
 
-def simulation_device(task_cfg: Mapping[str, Any]) -> torch.device:
-    """Where the task's simulation runs, as a torch device: ``cpu`` for the CPU backends; for ``mjx`` the
+def simulation_device(backend: str) -> torch.device:
+    """Where a task on ``backend`` simulates, as a torch device: ``cpu`` for the CPU backends; for ``mjx`` the
     device matching JAX's default one (``cuda:k`` on a GPU). ``trainer.device=null`` resolves to it."""
-    if task_cfg.get("backend", "cpu") != "mjx":
+    if backend != "mjx":
         return torch.device("cpu")
     from torchrl_ahrs.envs.backends.mjx import default_torch_device  # imports JAX: only when asked for
 
     return default_torch_device()
 
 
-def env_device(task_cfg: Mapping[str, Any], device: torch.device) -> torch.device:
-    """The device to build the task's environments on when the learner is on ``device``: ``device`` itself
-    for a device-resident backend (MJX: no copy between simulation and learner), else the CPU."""
-    return device if task_cfg.get("backend", "cpu") in DEVICE_RESIDENT_BACKENDS else torch.device("cpu")
+def env_device(backend: str, device: torch.device) -> torch.device:
+    """The device to build a ``backend`` task's environments on when the learner is on ``device``: ``device``
+    itself for a device-resident backend (MJX: no copy between simulation and learner), else the CPU."""
+    return device if backend in DEVICE_RESIDENT_BACKENDS else torch.device("cpu")
 
 
-def register_task(name: str, builder: TaskBuilder | str) -> None:
-    """Registers ``builder`` (a callable or ``"module:function"``) under ``name``."""
+def register_task(name: str, builder: TaskBuilder | str, settings: type[TaskSettings] = TaskSettings) -> None:
+    """Registers ``builder`` (a callable or ``"module:function"``) under ``name``, reading a ``settings`` record
+    (a frozen dataclass deriving from :class:`~torchrl_ahrs.envs.settings.TaskSettings`)."""
     _BUILDERS[name] = builder  # type: ignore[assignment]
+    _SETTINGS[name] = settings
+
+
+def settings_type(name: str) -> type[TaskSettings]:
+    """The settings record that task ``name``'s builder reads; unknown names raise with the accepted ones."""
+    if name not in _SETTINGS:
+        raise KeyError(f"unknown task {name!r}; available tasks: {', '.join(available_tasks())}")
+    return _SETTINGS[name]
 
 
 def available_tasks() -> list[str]:
@@ -91,7 +120,7 @@ def get_builder(name: str, backend: str = "cpu") -> TaskBuilder:
 
 
 def make_env(
-    task_cfg: Mapping[str, Any],
+    task: TaskSettings,
     num_envs: int,
     seed: int = 0,
     device: str | torch.device = "cpu",
@@ -101,12 +130,13 @@ def make_env(
     """Builds the task and tracks each component's episode return.
 
     Args:
-        task_cfg: the task's config (``conf/task/<name>.yaml``); ``task_cfg["name"]`` and
-            ``task_cfg.get("backend", "cpu")`` pick the builder.
+        task: the task's settings (:mod:`torchrl_ahrs.envs.settings`; from ``conf/task/<name>.yaml`` by
+            ``torchrl_ahrs.app.shared.settings.load_task_settings``); ``task.name`` and ``task.backend`` pick
+            the builder.
         num_envs: batch size N.
         seed: environment seed.
         device: the environment's torch device (:func:`env_device`: where an MJX env's state and output live).
-        components: the reward leaves that form the K axis; default ``task_cfg["components"]``.
+        components: the reward leaves that form the K axis; default ``task.components``.
             ``["total"]`` gives plain PPO's single head.
         transforms: factories (zero-argument callables, picklable for collector workers) of transforms
             appended after the task's own, before the episode returns are tracked — e.g. the
@@ -119,16 +149,16 @@ def make_env(
         (:mod:`torchrl_ahrs.envs.common.snapshot`).
 
     Example:
-        >>> from torchrl_ahrs.app.shared.settings import load_task_config
-        >>> env = make_env(load_task_config("ant_v5"), num_envs=2)
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> env = make_env(load_task_settings("ant_v5"), num_envs=2)
         >>> env.rollout(3)["next", "reward", "forward"].shape
         torch.Size([2, 3, 1])
     """
     if num_envs < 1:
         raise ValueError(f"num_envs must be at least 1, got {num_envs}")
-    components = list(components if components is not None else task_cfg["components"])
+    components = list(components if components is not None else task.components)
     tracked = components + ([TOTAL] if TOTAL not in components else [])
-    env = get_builder(task_cfg["name"], task_cfg.get("backend", "cpu"))(task_cfg, num_envs, seed, str(device))
+    env = get_builder(task.name, task.backend)(task, num_envs, seed, str(device))
     if transforms and not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     for make_transform in transforms:
@@ -141,7 +171,7 @@ def make_env(
             "pass transforms=[lambda: AuxiliaryReward.from_file(path)]"
         )
     if missing:
-        raise ValueError(f"task {task_cfg['name']!r} does not write the reward leaves {missing}")
+        raise ValueError(f"task {task.name!r} does not write the reward leaves {missing}")
     if not isinstance(env, TransformedEnv):
         env = TransformedEnv(env)
     env.append_transform(ComponentRewardSum(tracked))

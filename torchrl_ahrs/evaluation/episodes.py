@@ -65,8 +65,8 @@ def run_episodes(
 
     Example:
         >>> from torchrl_ahrs.envs.registry import make_env
-        >>> from torchrl_ahrs.app.shared.settings import load_task_config
-        >>> env = make_env(load_task_config("point_reach"), num_envs=2)
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> env = make_env(load_task_settings("point_reach"), num_envs=2)
         >>> zero = lambda td: td.set("action", torch.zeros(2, 2))
         >>> run_episodes(env, zero, ["distance", "total"]).lengths.tolist()
         [100, 100]

@@ -54,15 +54,15 @@ def evaluate(
     if episodes < 1:
         raise EvaluationError(f"episodes must be a positive integer, got {episodes}")
     policy = load_policy(run_dir)
-    reported = _reported_components(policy.components, policy.task["components"])
+    reported = _reported_components(policy.components, list(policy.task.components))
     env = make_env(policy.task, episodes, seed, components=reported, transforms=policy.make_envs.transforms)
     try:
-        results = run_episodes(env, policy.actor, reported, deterministic, step_probe(policy.task["name"]))
+        results = run_episodes(env, policy.actor, reported, deterministic, step_probe(policy.task.name))
     finally:
         env.close()
     summary = {
         "run": str(Path(run_dir).resolve()),
-        "task": policy.task["name"],
+        "task": policy.task.name,
         "method": policy.cfg.method.name,
         "components": policy.components,
         "deterministic": deterministic,
@@ -108,7 +108,7 @@ def render_clip(
         fps = fps or (1.0 / (control_dt * stride) if control_dt else DEFAULT_FPS)
     finally:
         env.close()
-    path = RunDirectory(run_dir).videos / (name or f"{policy.task['name']}.{video_format}")
+    path = RunDirectory(run_dir).videos / (name or f"{policy.task.name}.{video_format}")
     return write_clip(frames, path, fps)
 
 

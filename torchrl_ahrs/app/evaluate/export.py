@@ -177,7 +177,7 @@ def _onnx_difference(path: Path, observations: torch.Tensor, expected: torch.Ten
 
 def _write_metadata(result: ExportResult, policy, module: DeterministicPolicy, obs_dim: int, tolerance: float) -> None:
     metadata: dict[str, Any] = {
-        "task": policy.task["name"],
+        "task": policy.task.name,
         "method": policy.cfg.method.name,
         "obs_dim": obs_dim,
         "act_dim": int(module.low.numel()),

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -12,6 +11,7 @@ from torchrl.modules import ProbabilisticActor
 
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.app.train.build import EnvFactory, build_networks, env_factory
+from torchrl_ahrs.envs.settings import TaskSettings
 
 
 class EvaluationError(RuntimeError):
@@ -31,7 +31,7 @@ class TrainedPolicy:
         return self.make_envs.components
 
     @property
-    def task(self) -> dict[str, Any]:
+    def task(self) -> TaskSettings:
         return self.make_envs.task
 
 

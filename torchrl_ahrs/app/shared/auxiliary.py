@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from torchrl.envs.transforms import Transform
 
 from torchrl_ahrs.app.shared.errors import ConfigError
-from torchrl_ahrs.app.shared.settings import load_task_config
+from torchrl_ahrs.app.shared.settings import load_task_config, task_settings
 from torchrl_ahrs.app.shared.settings import select as _select
 from torchrl_ahrs.envs.registry import available_tasks, make_env
 from torchrl_ahrs.rewards.auxiliary import (
@@ -76,8 +76,9 @@ def resolve_aux_path(cfg: Any) -> Path:
 def collect_aux_inputs(
     task_cfg: Mapping[str, Any], num_envs: int = 8, steps: int = 16, seed: int = 0
 ) -> dict[str, torch.Tensor]:
-    """``obs`` dicts of ``num_envs · steps`` real transitions of the task under uniformly random actions."""
-    env = make_env(task_cfg, num_envs, seed)
+    """``obs`` dicts of ``num_envs · steps`` real transitions of the task (its config section) under uniformly
+    random actions."""
+    env = make_env(task_settings(task_cfg), num_envs, seed)
     try:
         with torch.no_grad():
             rollout = env.rollout(steps, break_when_any_done=False)  # [N, T]

@@ -5,6 +5,8 @@
 * :func:`llm_settings`: the ``llm`` group → :class:`~torchrl_ahrs.llm.client.LLMConfig`.
 * :func:`llm_and_task`, :func:`generation_output_dir`: what the generator commands read.
 * :func:`load_task_config`: ``conf/task/<name>.yaml`` composed from the installed package.
+* :func:`task_settings`, :func:`load_task_settings`: the ``task`` section → the frozen record its builder
+  reads (:mod:`torchrl_ahrs.envs.settings`); a key no field takes is refused, naming it and the task.
 * :func:`select`: one optional value of a composed config or a plain nested dict.
 
 A missing or null key takes the record's default, so a partial config (or a plain dict in a test) works.
@@ -24,12 +26,16 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar, cast
 
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_ahrs.app.shared.errors import ConfigError
+from torchrl_ahrs.envs.registry import settings_type
+from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.llm.client import LLMConfig
 from torchrl_ahrs.llm.generation import generation_output_dir as _output_dir
 from torchrl_ahrs.llm.generation import require_llm
@@ -40,10 +46,12 @@ __all__ = [
     "llm_and_task",
     "llm_settings",
     "load_task_config",
+    "load_task_settings",
     "schedule_settings",
     "scheduler_settings",
     "select",
     "selection_settings",
+    "task_settings",
 ]
 
 Record = TypeVar("Record")
@@ -165,3 +173,81 @@ def load_task_config(name: str, overrides: Sequence[str] = ()) -> DictConfig:
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=[f"task={name}", *overrides])
     return cast(DictConfig, cfg.task)
+
+
+# task keys that are not simulation settings: the prompts' text, and what the trainer reads from cfg.task
+NON_SIMULATION_KEYS = (
+    "description",
+    "component_descriptions",
+    "reward_code",
+    "environment_code",
+    "critic_observation",
+    "components_sum_to_native",
+)
+
+
+def _typed_record(record_type: type[Record], section: Mapping[str, Any], where: str) -> Record:
+    """``record_type`` from the keys of ``section``: a nested record field is converted key by key, a list
+    becomes a tuple where the field is a tuple; an unknown or missing key raises a one-line ConfigError."""
+    hints = typing.get_type_hints(record_type)
+    fields = {f.name: f for f in dataclasses.fields(record_type)}  # type: ignore[arg-type]
+    for key in section:
+        if key not in fields:
+            raise ConfigError(f"{where}: unknown key {key!r}; its keys are {', '.join(sorted(fields))}")
+    values = {}
+    for name, value in section.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint) and isinstance(value, Mapping):
+            value = _typed_record(cast(type, hint), value, f"{where}.{name}")
+        elif isinstance(value, list) and tuple in (
+            typing.get_origin(hint),
+            *map(typing.get_origin, typing.get_args(hint)),
+        ):
+            value = tuple(value)
+        values[name] = value
+    absent = [f.name for f in fields.values() if f.name not in values and f.default is dataclasses.MISSING]
+    if absent:
+        raise ConfigError(f"{where}: missing key {absent[0]!r} (every key without a default must be set)")
+    return record_type(**values)
+
+
+def task_settings(task: Any) -> TaskSettings:
+    """The ``task`` section (a composed config, e.g. :func:`load_task_config`'s, or a plain mapping) as the
+    settings record its builder reads (:func:`~torchrl_ahrs.envs.registry.settings_type`).
+
+    Raises:
+        ConfigError: the task is unknown, or a key is not a setting of the task (one line naming both).
+
+    Example:
+        >>> settings = task_settings(load_task_config("point_reach", ["task.ctrl_cost=0.1"]))
+        >>> type(settings).__name__, settings.ctrl_cost, settings.components
+        ('PointReachSettings', 0.1, ('distance', 'arrival', 'ctrl'))
+        >>> try:
+        ...     task_settings({**load_task_config("point_reach"), "ctrl_weight": 1.0})
+        ... except ConfigError as error:
+        ...     print(str(error).split(";")[0])
+        task 'point_reach': unknown key 'ctrl_weight'
+    """
+    # a plain mapping may hold config nodes (``{**cfg, ...}``): one round trip makes every value plain
+    container = OmegaConf.to_container(
+        task if OmegaConf.is_config(task) else OmegaConf.create(dict(task)), resolve=True
+    )
+    section = {str(key): value for key, value in cast(dict, container).items() if key not in NON_SIMULATION_KEYS}
+    name = section.get("name")
+    try:
+        record_type = settings_type(str(name))
+    except KeyError as error:
+        raise ConfigError(str(error.args[0])) from None
+    return _typed_record(record_type, section, f"task {name!r}")
+
+
+def load_task_settings(name: str, overrides: Sequence[str] = ()) -> TaskSettings:
+    """:func:`task_settings` of :func:`load_task_config`: what building task ``name`` by hand takes.
+
+    Example:
+        >>> from torchrl_ahrs.envs import make_env
+        >>> env = make_env(load_task_settings("point_reach", ["task.max_episode_steps=10"]), num_envs=2)
+        >>> env.rollout(3)["next", "reward", "total"].shape
+        torch.Size([2, 3, 1])
+    """
+    return task_settings(load_task_config(name, overrides))

@@ -12,10 +12,10 @@ from __future__ import annotations
 import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from torchrl.collectors import MultiAsyncCollector, MultiSyncCollector
 from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor
@@ -24,9 +24,10 @@ from torchrl_ahrs.app.shared.auxiliary import TransformFactory, auxiliary_transf
 from torchrl_ahrs.app.shared.config import resolve_components
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
-from torchrl_ahrs.app.shared.settings import scheduler_settings
+from torchrl_ahrs.app.shared.settings import scheduler_settings, task_settings
 from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
 from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device
+from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
@@ -41,7 +42,7 @@ class EnvFactory:
     transforms such as the auxiliary reward), so collector worker processes build exactly what the
     learner's probe saw."""
 
-    task: dict[str, Any]
+    task: TaskSettings  # the task's settings record (frozen; pickles to workers)
     components: list[str]
     transforms: tuple[TransformFactory, ...] = ()
     device: str = "cpu"  # the environments' torch device (a string: the factory is pickled to workers)
@@ -71,7 +72,7 @@ def resolve_devices(cfg: DictConfig) -> RunDevices:
     if configured is not None:  # validate_config has checked it
         learner = torch.device(configured)
     else:
-        learner = simulation_device(cfg.task)
+        learner = simulation_device(task_settings(cfg.task).backend)
         if learner.type == "cuda" and not torch.cuda.is_available():  # e.g. jax[cuda12] beside a CPU build of torch
             raise ConfigError(
                 f"JAX steps on the GPU and trainer.device=null follows it ({learner}), but torch sees no CUDA "
@@ -79,7 +80,7 @@ def resolve_devices(cfg: DictConfig) -> RunDevices:
             )
         if learner.type == "cuda" and cfg.trainer.collector != "sync":
             raise ConfigError(f"trainer.device=null is {learner} here (JAX's GPU), which needs trainer.collector=sync")
-    return RunDevices(learner, env_device(cfg.task, learner))
+    return RunDevices(learner, env_device(task_settings(cfg.task).backend, learner))
 
 
 def env_factory(cfg: DictConfig, check_aux: bool = True, device: torch.device | str = "cpu") -> EnvFactory:
@@ -88,9 +89,8 @@ def env_factory(cfg: DictConfig, check_aux: bool = True, device: torch.device | 
     aux = auxiliary_transform(cfg, check=check_aux)
     # an unsquashed Gaussian samples outside the bounds: the env gets the clipped action, the rollout the sample
     clip = ClipActionToSpec if cfg.model.get("distribution", "tanh_normal") == "normal" else None
-    task = cast(dict[str, Any], OmegaConf.to_container(cfg.task, resolve=True))
     transforms = tuple(factory for factory in (clip, aux) if factory)
-    return EnvFactory(task, resolve_components(cfg), transforms, str(device))
+    return EnvFactory(task_settings(cfg.task), resolve_components(cfg), transforms, str(device))
 
 
 @dataclass

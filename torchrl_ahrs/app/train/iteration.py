@@ -82,7 +82,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     check_task_rewards(make_envs, int(cfg.seed), sums_to_native=bool(cfg.task.get("components_sum_to_native", True)))
     log.info("task %s, method %s, K=%d components %s", cfg.task.name, cfg.method.name, len(components), components)
     log.info("learner on %s, environments on %s", devices.learner, devices.envs)
-    physics = simulation_device(cfg.task) if cfg.task.get("backend", "cpu") == "mjx" else devices.envs
+    backend = make_envs.task.backend
+    physics = simulation_device(backend) if backend == "mjx" else devices.envs
     if physics != devices.envs:  # e.g. JAX on a GPU with trainer.device=cpu
         log.warning("MJX steps on %s, its env on %s: every control step copies the state across", physics, devices.envs)
     networks = build_networks(cfg, make_envs, device=devices.learner)

@@ -26,8 +26,8 @@ class ClipActionToSpec(Transform):
     Example (EnvPool's Ant-v5 charges 0.5 · Σ a² for control, on the action it receives):
         >>> import torch
         >>> from torchrl_ahrs.envs import make_env
-        >>> from torchrl_ahrs.app.shared.settings import load_task_config
-        >>> env = make_env(load_task_config("ant_v5"), num_envs=1, transforms=[ClipActionToSpec])
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> env = make_env(load_task_settings("ant_v5"), num_envs=1, transforms=[ClipActionToSpec])
         >>> td = env.reset()
         >>> td["action"] = torch.full((1, 8), 5.0)
         >>> out = env.step(td)

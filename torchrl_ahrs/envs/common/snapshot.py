@@ -92,10 +92,10 @@ class BaseEnvSnapshot(Transform):
 
     Example:
         >>> from torchrl_ahrs.envs import make_env
-        >>> from torchrl_ahrs.app.shared.settings import load_task_config
-        >>> env = make_env(load_task_config("point_reach"), num_envs=2, seed=0)
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> env = make_env(load_task_settings("point_reach"), num_envs=2, seed=0)
         >>> _ = env.rollout(3, break_when_any_done=False)
-        >>> twin = make_env(load_task_config("point_reach"), num_envs=2, seed=1)
+        >>> twin = make_env(load_task_settings("point_reach"), num_envs=2, seed=1)
         >>> twin.load_state_dict(env.state_dict())
         >>> bool((twin.base_env.qpos == env.base_env.qpos).all())
         True

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from importlib.resources import files
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -28,6 +27,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
 from torchrl_ahrs.envs.common.rotations import body_axis, quat_rotate_inverse
+from torchrl_ahrs.envs.settings import AntSettings
 
 ANT_TERMS = ("progress", "alive", "up", "heading", "actions_cost", "energy", "joints_at_limit", "death")
 
@@ -199,21 +199,21 @@ class AntEnv(BatchedMujocoEnv):
 
 
 def make_ant(
-    task_cfg: Mapping[str, Any],
+    task: AntSettings,
     num_envs: int,
     seed: int = 0,
     device: str = "cpu",
     env_class: type[AntEnv] = AntEnv,
 ) -> EnvBase:
     """Task builder (registry signature): ``AntEnv`` (or ``env_class``, e.g. its MJX variant) + ``RewardComponents``
-    over ``task_cfg.components``."""
+    over ``task.components``."""
     env = env_class(
         num_envs,
-        decimation=int(task_cfg.get("decimation", 2)),
-        max_episode_steps=int(task_cfg.get("max_episode_steps", 1000)),
-        scales=dict(task_cfg.get("scales", {}) or {}),
-        num_threads=task_cfg.get("num_threads", None),
+        decimation=int(task.decimation),
+        max_episode_steps=int(task.max_episode_steps),
+        scales=dict(task.scales),
+        num_threads=task.num_threads,
         seed=seed,
         device=device,
     )
-    return with_reward_components(env, task_cfg["components"])
+    return with_reward_components(env, task.components)

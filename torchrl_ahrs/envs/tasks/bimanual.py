@@ -24,7 +24,6 @@ the force sensors. The task appends its object state.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
 from importlib.resources import files
 from typing import Any
 
@@ -33,6 +32,7 @@ import numpy as np
 import torch
 
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
+from torchrl_ahrs.envs.settings import BimanualSettings
 
 HANDS = ("rh_", "lh_")  # right hand first: action[0:26] and the first half of the observation
 FINGERS = ("ff", "mf", "rf", "lf", "th")
@@ -144,9 +144,11 @@ ENV_KEYS = ("decimation", "max_episode_steps", "reset_dof_noise", "reset_positio
 HAND_KEYS = ("base_range", "base_rot_range", "base_kp", "base_rot_kp")
 
 
-def bimanual_kwargs(task_cfg: Mapping[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
-    """Constructor keywords: the entries of ``task_cfg`` among ``keys`` (plus the env's and the hand's) that are set."""
-    return {k: task_cfg[k] for k in (*ENV_KEYS, *HAND_KEYS, *keys) if task_cfg.get(k) is not None}
+def bimanual_kwargs(task: BimanualSettings, keys: tuple[str, ...]) -> dict[str, Any]:
+    """Constructor keywords: the fields of ``task`` among ``keys`` (plus the env's and the hand's) that are set
+    (``None`` leaves the constructor's own: ``num_threads``' automatic count, the hand's servo gains)."""
+    values = {k: getattr(task, k) for k in (*ENV_KEYS, *HAND_KEYS, *keys)}
+    return {k: v for k, v in values.items() if v is not None}
 
 
 def finger_distance(grasp: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:

@@ -28,8 +28,8 @@ Differences from legged_gym: no observation noise, no heading command (ω_yaw is
 additive joint noise at reset instead of scaling, one contact threshold (1 N) for air time and no_fly.
 
 Example:
-    >>> from torchrl_ahrs.app.shared.settings import load_task_config
-    >>> env = make_cassie(load_task_config("cassie"), num_envs=2, seed=0)
+    >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+    >>> env = make_cassie(load_task_settings("cassie"), num_envs=2, seed=0)
     >>> td = env.rollout(3)
     >>> td["next", "reward", "tracking_lin_vel"].shape, td["observation"].shape
     (torch.Size([2, 3, 1]), torch.Size([2, 3, 42]))
@@ -48,6 +48,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
 from torchrl_ahrs.envs.common import legged_rewards as lr
+from torchrl_ahrs.envs.settings import CassieSettings
 from torchrl_ahrs.envs.tasks.cassie_model import LEG_JOINTS, CassieLayout, load_cassie_model
 
 OBS_SCALES = {"lin_vel": 2.0, "ang_vel": 0.25, "dof_pos": 1.0, "dof_vel": 0.05}
@@ -263,19 +264,19 @@ def _per_joint(values: Mapping[str, float] | Any) -> list[float]:
 
 
 def make_cassie(
-    task_cfg: Mapping[str, Any],
+    task: CassieSettings,
     num_envs: int,
     seed: int = 0,
     device: str = "cpu",
     env_class: type[CassieEnv] = CassieEnv,
 ) -> EnvBase:
     """Task builder (registry signature): ``CassieEnv`` (or ``env_class``, e.g. its MJX variant) + ``RewardComponents``
-    over ``task_cfg.components``."""
+    over ``task.components``."""
     model, layout = load_cassie_model(
-        task_cfg.get("model_path") or None,
-        physics_dt=float(task_cfg.get("physics_dt", 0.005)),
-        stiffness=_per_joint(task_cfg.get("stiffness", dict(zip(LEG_JOINTS, (100, 100, 200, 200, 40), strict=True)))),
-        damping=_per_joint(task_cfg.get("damping", dict(zip(LEG_JOINTS, (3, 3, 6, 6, 1), strict=True)))),
+        task.model_path or None,  # "" from a command line override means the shipped model too
+        physics_dt=float(task.physics_dt),
+        stiffness=_per_joint(task.stiffness),
+        damping=_per_joint(task.damping),
     )
     if model.neq and any(model.eq_type == mujoco.mjtEq.mjEQ_CONNECT) and model.opt.timestep > 0.002:
         warnings.warn(
@@ -283,28 +284,27 @@ def make_cassie(
             f"of {model.opt.timestep} s is likely unstable, use task.physics_dt=0.002 task.decimation=10",
             stacklevel=2,
         )
-    commands = task_cfg.get("commands", {})
-    ranges = {k: tuple(commands[k]) for k in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw") if k in commands}
+    commands = task.commands
     env = env_class(
         model,
         layout,
         num_envs,
-        decimation=int(task_cfg.get("decimation", 4)),
-        episode_length_s=float(task_cfg.get("episode_length_s", 20.0)),
-        action_scale=float(task_cfg.get("action_scale", 0.5)),
-        command_ranges={**{"lin_vel_x": (-1, 1), "lin_vel_y": (-1, 1), "ang_vel_yaw": (-1, 1)}, **ranges},
-        resampling_time_s=float(commands.get("resampling_time_s", 10.0)),
-        min_planar_command=float(commands.get("min_planar_command", 0.2)),
-        reward_scales=dict(task_cfg.get("reward_scales", {})),
-        tracking_sigma=float(task_cfg.get("tracking_sigma", 0.25)),
-        soft_dof_pos_limit=float(task_cfg.get("soft_dof_pos_limit", 0.95)),
-        feet_air_time_target=float(task_cfg.get("feet_air_time_target", 0.5)),
-        contact_threshold=float(task_cfg.get("contact_threshold", 1.0)),
-        min_base_height=float(task_cfg.get("min_base_height", 0.55)),
-        init_joint_noise=float(task_cfg.get("init_joint_noise", 0.1)),
-        init_base_vel_noise=float(task_cfg.get("init_base_vel_noise", 0.5)),
-        num_threads=task_cfg.get("num_threads", None),
+        decimation=int(task.decimation),
+        episode_length_s=float(task.episode_length_s),
+        action_scale=float(task.action_scale),
+        command_ranges={k: tuple(getattr(commands, k)) for k in ("lin_vel_x", "lin_vel_y", "ang_vel_yaw")},
+        resampling_time_s=float(commands.resampling_time_s),
+        min_planar_command=float(commands.min_planar_command),
+        reward_scales=dict(task.reward_scales),
+        tracking_sigma=float(task.tracking_sigma),
+        soft_dof_pos_limit=float(task.soft_dof_pos_limit),
+        feet_air_time_target=float(task.feet_air_time_target),
+        contact_threshold=float(task.contact_threshold),
+        min_base_height=float(task.min_base_height),
+        init_joint_noise=float(task.init_joint_noise),
+        init_base_vel_noise=float(task.init_base_vel_noise),
+        num_threads=task.num_threads,
         seed=seed,
         device=device,
     )
-    return with_reward_components(env, task_cfg["components"])
+    return with_reward_components(env, task.components)

@@ -21,14 +21,16 @@ EnvPool steps these 8-60x faster than TorchRL's ``DMControlEnv`` on this machine
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
+from typing import cast
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, TransformedEnv
 
 from torchrl_ahrs.envs.backends.envpool import EnvPoolEnv
+from torchrl_ahrs.envs.settings import CheetahRunSettings, DmcSettings
+from torchrl_ahrs.envs.tasks.envpool_tasks import envpool_make_kwargs
 from torchrl_ahrs.rewards.components import RewardComponents
 
 # dm_control.suite constants (walker.py, quadruped.py, cheetah.py)
@@ -76,51 +78,51 @@ def cheetah_run_terms(reward: torch.Tensor, jog_speed: float = 5.0):
     return {"jog": jog, "sprint": reward - jog}  # r - min(r, f)
 
 
-def _walker(next_td: TensorDictBase, cfg: Mapping[str, Any]):
+def _walker(next_td: TensorDictBase, task: DmcSettings):
     orientations = next_td.get("orientations")  # [N, 14]: (xx, xz) per body, torso first
     # planar walker: the torso rotates about y, so its zz equals its xx
     return walker_walk_terms(next_td.get("height"), orientations[..., 0], next_td.get("reward").squeeze(-1))
 
 
-def _quadruped(next_td: TensorDictBase, cfg: Mapping[str, Any]):
+def _quadruped(next_td: TensorDictBase, task: DmcSettings):
     return quadruped_run_terms(next_td.get("torso_upright"), next_td.get("torso_velocity")[..., 0])
 
 
-def _cheetah(next_td: TensorDictBase, cfg: Mapping[str, Any]):
-    return cheetah_run_terms(next_td.get("reward").squeeze(-1), float(cfg.get("jog_speed", 5.0)))
+def _cheetah(next_td: TensorDictBase, task: DmcSettings):
+    jog_speed = cast(CheetahRunSettings, task).jog_speed  # the registry gives dmc_cheetah_run this record
+    return cheetah_run_terms(next_td.get("reward").squeeze(-1), float(jog_speed))
 
 
-_TERMS: dict[str, Callable[[TensorDictBase, Mapping[str, Any]], dict[str, torch.Tensor]]] = {
+_TERMS: dict[str, Callable[[TensorDictBase, DmcSettings], dict[str, torch.Tensor]]] = {
     "WalkerWalk-v1": _walker,
     "QuadrupedRun-v1": _quadruped,
     "CheetahRun-v1": _cheetah,
 }
 
 
-def make_dmc_task(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: str) -> EnvBase:
+def make_dmc_task(task: DmcSettings, num_envs: int, seed: int, device: str) -> EnvBase:
     """EnvPool dm_control task whose components sum exactly to the native reward.
 
     Example:
-        >>> from torchrl_ahrs.app.shared.settings import load_task_config
-        >>> env = make_dmc_task(load_task_config("dmc_quadruped_run"), num_envs=2, seed=0, device="cpu")
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> env = make_dmc_task(load_task_settings("dmc_quadruped_run"), num_envs=2, seed=0, device="cpu")
         >>> sorted(env.rollout(2)["next", "reward"].keys())
         ['move', 'total', 'upright']
     """
-    env_id = task_cfg["env_id"]
+    env_id = task.env_id
     if env_id not in _TERMS:
         raise KeyError(f"no reward split for {env_id!r}; known: {sorted(_TERMS)}")
-    cfg = dict(task_cfg)
     base = EnvPoolEnv(
         env_id,
         num_envs=num_envs,
         seed=seed,
         device=device,
-        observation_keys=list(task_cfg["observation_keys"]),
+        observation_keys=list(task.observation_keys),
         keep_observation_parts=True,  # the reward split reads single parts (height, torso_upright, ...)
-        num_threads=int(task_cfg.get("num_threads", 0) or 0),
-        **({"max_episode_steps": task_cfg["max_episode_steps"]} if task_cfg.get("max_episode_steps") else {}),
+        num_threads=int(task.num_threads or 0),  # null from an override means EnvPool's default, as 0 does
+        **envpool_make_kwargs(task),
     )
     terms = _TERMS[env_id]
     return TransformedEnv(
-        base, RewardComponents(list(task_cfg["components"]), component_fn=lambda next_td: terms(next_td, cfg))
+        base, RewardComponents(list(task.components), component_fn=lambda next_td: terms(next_td, task))
     )

@@ -7,20 +7,18 @@ solver and iterations); ``task.mjx_x64=true`` runs MJX in float64.
 
 Example:
     >>> import pytest; _ = pytest.importorskip("jax", reason="the [mjx] extra is not installed")
-    >>> from torchrl_ahrs.app.shared.settings import load_task_config
-    >>> env = make_mjx_task(load_task_config("quadcopter", ["task.backend=mjx"]), num_envs=2)
+    >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+    >>> env = make_mjx_task(load_task_settings("quadcopter", ["task.backend=mjx"]), num_envs=2)
     >>> env.rollout(2)["next", "reward", "pos_up"].shape
     torch.Size([2, 2, 1])
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mjx import mjx_variant
+from torchrl_ahrs.envs.settings import MjxSettings
 from torchrl_ahrs.envs.tasks.ant import AntEnv, make_ant
 from torchrl_ahrs.envs.tasks.cassie import CassieEnv, make_cassie
 from torchrl_ahrs.envs.tasks.quadcopter import QuadcopterEnv, make_quadcopter
@@ -32,11 +30,11 @@ MJX_TASKS = {
 }
 
 
-def make_mjx_task(task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
+def make_mjx_task(task: MjxSettings, num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
     """Task builder (registry signature) for ``task.backend=mjx``: the CPU builder with the MJX env class."""
-    name = task_cfg["name"]
+    name = task.name
     if name not in MJX_TASKS:
         raise KeyError(f"task {name!r} has no MJX backend; MJX tasks: {', '.join(sorted(MJX_TASKS))}")
     builder, task_class = MJX_TASKS[name]
-    env_class = mjx_variant(task_class, x64=bool(task_cfg.get("mjx_x64", False)))
-    return builder(task_cfg, num_envs, seed, device, env_class=env_class)
+    env_class = mjx_variant(task_class, x64=bool(task.mjx_x64))
+    return builder(task, num_envs, seed, device, env_class=env_class)  # type: ignore[operator]

@@ -12,14 +12,12 @@ The native reward is their sum.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import mujoco
 import numpy as np
 import torch
 
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
+from torchrl_ahrs.envs.settings import PointReachSettings
 
 POINT_XML = """
 <mujoco model="point_reach">
@@ -99,15 +97,16 @@ class PointReachEnv(BatchedMujocoEnv):
         }
 
 
-def make_point_reach(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: str = "cpu"):
+def make_point_reach(task: PointReachSettings, num_envs: int, seed: int, device: str = "cpu"):
     """Builder for the registry: :class:`PointReachEnv` with its components as reward leaves."""
     env = PointReachEnv(
         num_envs,
-        max_episode_steps=task_cfg.get("max_episode_steps", 100),
-        target_range=task_cfg.get("target_range", 1.0),
-        arrival_radius=task_cfg.get("arrival_radius", 0.1),
-        ctrl_cost=task_cfg.get("ctrl_cost", 0.05),
+        max_episode_steps=task.max_episode_steps,
+        target_range=task.target_range,
+        arrival_radius=task.arrival_radius,
+        ctrl_cost=task.ctrl_cost,
         seed=seed,
         device=device,
+        **({"num_threads": task.num_threads} if task.num_threads is not None else {}),
     )
-    return with_reward_components(env, task_cfg["components"])
+    return with_reward_components(env, task.components)

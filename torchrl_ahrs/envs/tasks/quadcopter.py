@@ -12,9 +12,7 @@ An env terminates when d > 3 or z < 0.3, and is truncated at the time limit.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from importlib.resources import files
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -23,6 +21,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
 from torchrl_ahrs.envs.common.rotations import body_axis, quat_rotate
+from torchrl_ahrs.envs.settings import QuadcopterSettings
 
 QUADCOPTER_TERMS = ("pos", "pos_up", "pos_spin")
 
@@ -112,23 +111,23 @@ class QuadcopterEnv(BatchedMujocoEnv):
 
 
 def make_quadcopter(
-    task_cfg: Mapping[str, Any],
+    task: QuadcopterSettings,
     num_envs: int,
     seed: int = 0,
     device: str = "cpu",
     env_class: type[QuadcopterEnv] = QuadcopterEnv,
 ) -> EnvBase:
     """Task builder (registry signature): ``QuadcopterEnv`` (or ``env_class``, e.g. its MJX variant) + ``RewardComponents``
-    over ``task_cfg.components``."""
+    over ``task.components``."""
     env = env_class(
         num_envs,
-        decimation=int(task_cfg.get("decimation", 2)),
-        max_episode_steps=int(task_cfg.get("max_episode_steps", 500)),
-        target=tuple(task_cfg.get("target", (0.0, 0.0, 1.0))),
-        max_distance=float(task_cfg.get("max_distance", 3.0)),
-        min_height=float(task_cfg.get("min_height", 0.3)),
-        num_threads=task_cfg.get("num_threads", None),
+        decimation=int(task.decimation),
+        max_episode_steps=int(task.max_episode_steps),
+        target=task.target,
+        max_distance=float(task.max_distance),
+        min_height=float(task.min_height),
+        num_threads=task.num_threads,
         seed=seed,
         device=device,
     )
-    return with_reward_components(env, task_cfg["components"])
+    return with_reward_components(env, task.components)

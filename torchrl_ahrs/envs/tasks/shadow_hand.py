@@ -15,9 +15,6 @@ gymnasium-robotics dense reward ``-(10 * ||p - p*|| + theta)`` is kept at ``("in
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
@@ -25,6 +22,8 @@ from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Compose, Transform
 
 from torchrl_ahrs.envs.backends.envpool import INFO, EnvPoolEnv
+from torchrl_ahrs.envs.settings import ShadowHandSettings
+from torchrl_ahrs.envs.tasks.envpool_tasks import envpool_make_kwargs
 from torchrl_ahrs.rewards.components import RewardComponents
 
 COMPONENTS = ("dist", "rot", "action", "success", "fall")
@@ -80,7 +79,8 @@ class ShadowHandTerms(Transform):
     Reads ``"action"`` from the step input and ``"achieved_goal"``/``"desired_goal"`` from its output.
 
     Example:
-        >>> env = make_shadow_hand({"components": list(COMPONENTS)}, num_envs=2, seed=0, device="cpu")
+        >>> from torchrl_ahrs.app.shared.settings import load_task_settings
+        >>> env = make_shadow_hand(load_task_settings("shadow_hand"), num_envs=2, seed=0, device="cpu")
         >>> sorted(env.rollout(2)["next", "reward"].keys())
         ['action', 'dist', 'fall', 'rot', 'success', 'total']
     """
@@ -132,23 +132,23 @@ TERM_PARAMS = (
 )
 
 
-def make_shadow_hand(task_cfg: Mapping[str, Any], num_envs: int, seed: int, device: str) -> EnvBase:
+def make_shadow_hand(task: ShadowHandSettings, num_envs: int, seed: int, device: str) -> EnvBase:
     """Shadow hand block task; ``("reward", "total")`` is the sum of the Isaac Gym-style terms.
 
     The policy observes ``"observation"`` = [hand and block state (61), goal (7)] ([N, 68]).
     """
     base = EnvPoolEnv(
-        task_cfg.get("env_id", "HandManipulateBlockDense-v1"),
+        task.env_id,
         num_envs=num_envs,
         seed=seed,
         device=device,
-        observation_keys=list(task_cfg.get("observation_keys", ["observation", "desired_goal"])),
+        observation_keys=list(task.observation_keys),
         keep_observation_parts=True,
-        num_threads=int(task_cfg.get("num_threads", 0) or 0),
-        **({"max_episode_steps": task_cfg["max_episode_steps"]} if task_cfg.get("max_episode_steps") else {}),
+        num_threads=int(task.num_threads or 0),  # null from an override means EnvPool's default, as 0 does
+        **envpool_make_kwargs(task),
     )
-    params = {k: task_cfg[k] for k in TERM_PARAMS if task_cfg.get(k) is not None}
-    components = list(task_cfg["components"])
+    params = {k: getattr(task, k) for k in TERM_PARAMS}
+    components = list(task.components)
     return TransformedEnv(
         base,
         Compose(

@@ -31,6 +31,7 @@ import torch
 from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mujoco_base import with_reward_components
+from torchrl_ahrs.envs.settings import BottleCapSettings
 from torchrl_ahrs.envs.tasks.bimanual import BimanualShadowEnv, bimanual_kwargs, finger_distance
 
 BOTTLE_CAP_TERMS = ("right_reach", "left_reach", "lift")
@@ -159,10 +160,8 @@ class ShadowHandBottleCapEnv(BimanualShadowEnv):
         return fell | (right_palm >= self.fail_right_dist) | (left >= self.fail_left_dist)
 
 
-def make_shadow_hand_bottle_cap(
-    task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: str = "cpu"
-) -> EnvBase:
+def make_shadow_hand_bottle_cap(task: BottleCapSettings, num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
     """Task builder (registry signature): ``ShadowHandBottleCapEnv`` + ``RewardComponents``."""
     keys = ("gate", "lift_scale", "success_lift", "fail_cap_height", "fail_right_dist", "fail_left_dist")
-    env = ShadowHandBottleCapEnv(num_envs, seed=seed, device=device, **bimanual_kwargs(task_cfg, keys))
-    return with_reward_components(env, task_cfg["components"])
+    env = ShadowHandBottleCapEnv(num_envs, seed=seed, device=device, **bimanual_kwargs(task, keys))
+    return with_reward_components(env, task.components)

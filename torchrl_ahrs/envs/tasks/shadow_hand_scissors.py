@@ -28,6 +28,7 @@ import torch
 from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mujoco_base import with_reward_components
+from torchrl_ahrs.envs.settings import ScissorsSettings
 from torchrl_ahrs.envs.tasks.bimanual import BimanualShadowEnv, bimanual_kwargs, finger_distance
 
 SCISSORS_TERMS = ("right_reach", "left_reach", "open")
@@ -151,10 +152,8 @@ class ShadowHandScissorsEnv(BimanualShadowEnv):
         return (up < self.fail_up) | (right >= self.fail_finger_dist) | (left >= self.fail_finger_dist)
 
 
-def make_shadow_hand_scissors(
-    task_cfg: Mapping[str, Any], num_envs: int, seed: int = 0, device: str = "cpu"
-) -> EnvBase:
+def make_shadow_hand_scissors(task: ScissorsSettings, num_envs: int, seed: int = 0, device: str = "cpu") -> EnvBase:
     """Task builder (registry signature): ``ShadowHandScissorsEnv`` + ``RewardComponents``."""
     keys = ("gate", "open_scale", "success_q", "fail_up", "fail_finger_dist")
-    env = ShadowHandScissorsEnv(num_envs, seed=seed, device=device, **bimanual_kwargs(task_cfg, keys))
-    return with_reward_components(env, task_cfg["components"])
+    env = ShadowHandScissorsEnv(num_envs, seed=seed, device=device, **bimanual_kwargs(task, keys))
+    return with_reward_components(env, task.components)
