@@ -10,7 +10,7 @@ import pytest
 import torch
 from conftest import differences, make_cfg
 
-from torchrl_ahrs.app.shared.config import ConfigError
+from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.app.train.build import RunDevices, build_networks, env_factory, resolve_devices
 from torchrl_ahrs.app.train.iteration import train

@@ -13,7 +13,8 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from torchrl_ahrs.app.shared.auxiliary import collect_aux_inputs, validate_aux_file
-from torchrl_ahrs.app.shared.config import ConfigError, resolve_components, validate_config
+from torchrl_ahrs.app.shared.config import resolve_components, validate_config
+from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.settings import load_task_config, task_settings
 from torchrl_ahrs.app.train.runs import read_scalar as read_scalar_file
 from torchrl_ahrs.envs.registry import available_tasks, make_env

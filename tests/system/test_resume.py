@@ -50,8 +50,8 @@ def train_until(cfg, run_dir, iterations, monkeypatch):
     """Trains as ``cfg`` says but stops dead right after the checkpoint of iteration ``iterations``."""
     save = checkpoint_module.CheckpointHook.__call__
 
-    def save_then_stop(hook):
-        save(hook)
+    def save_then_stop(hook, *arguments):  # (batch, metrics): what the loop hands every after-iteration callable
+        save(hook, *arguments)
         if hook.iteration == iterations:
             raise Interrupted
 

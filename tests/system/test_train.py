@@ -8,7 +8,8 @@ import pytest
 import torch
 from conftest import make_cfg
 
-from torchrl_ahrs.app.shared.config import ConfigError, validate_config
+from torchrl_ahrs.app.shared.config import validate_config
+from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.train.runs import read_scalar as read_scalar_file
 from torchrl_ahrs.train import train
 

@@ -13,7 +13,8 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 
-from torchrl_ahrs.training.loop import LoopSettings, adaptive_kl_lr, epoch_minibatches
+from torchrl_ahrs.training.loop import adaptive_kl_lr, epoch_minibatches
+from torchrl_ahrs.training.run import LoopSettings
 from torchrl_ahrs.value import WeightedMultiGAE
 
 

@@ -12,7 +12,7 @@ from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.app.train.iteration import train
 from torchrl_ahrs.app.train.runs import read_scalar
-from torchrl_ahrs.training.loop import LoopSettings
+from torchrl_ahrs.training.run import LoopSettings
 from torchrl_ahrs.value import WeightedMultiGAE
 
 FRAMES, ITERATIONS = 64, 3

@@ -11,12 +11,16 @@ In the order it runs (the section comments in :func:`learn` carry these numbers)
     4. normalisers   the observation statistics absorb the batch just trained on; the learning rate anneals;
                      the collector gets the new policy
     5. schedule      RuleScheduler.step: every `interval` iterations statistics -> rule -> w_k in the estimator
-    6. log           every scalar of the iteration once, at step = frames collected; console line; video clip
-    7. checkpoint    the run's state registry, every `interval` iterations and after the last
+    6. log           every scalar of the iteration once, at step = frames collected
+    7. after         the app's after-iteration callables, in order: console line, video clip, and last the
+                     checkpoint of the run's state registry (every `interval` iterations and after the last)
 
-The parts are built by :mod:`torchrl_ahrs.app.train.iteration` from the Hydra config (or by hand: see
-:class:`TrainingRun`); this module never reads configuration. The loop is TorchRL's pieces composed as
-TorchRL's ``sota-implementations/ppo`` scripts compose them: a ``Collector``, a loss module, a value
+Below :func:`learn`, in the order it calls them, the helpers only it uses: :class:`FiniteGuard` (1),
+:func:`epoch_minibatches`, :func:`adaptive_kl_lr`, :func:`check_finite_update` and :func:`epoch_means` (3).
+
+The parts (:class:`~torchrl_ahrs.training.run.TrainingRun`) are built by :mod:`torchrl_ahrs.app.train.iteration`
+from the Hydra config, or by hand; this module never reads configuration. The loop is TorchRL's pieces composed
+as TorchRL's ``sota-implementations/ppo`` scripts compose them: a ``Collector``, a loss module, a value
 estimator, ``torch.optim`` and a TorchRL ``Logger``.
 """
 
@@ -24,9 +28,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Iterable, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -34,136 +36,11 @@ from torch import nn
 
 from torchrl_ahrs.rewards.auxiliary import AuxiliaryRewardError
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
-from torchrl_ahrs.training.models import RunningNorm
-from torchrl_ahrs.training.updates import check_finite_update, epoch_means
+from torchrl_ahrs.training.run import TrainingRun
 
 # what the loss (and the KL between the collecting and the current policy) reads from a minibatch, besides
 # the loss's own in_keys; the batch also holds "next", episode accumulators... that are never gathered
 MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
-# when the advantages and value targets are estimated: before every PPO epoch with the critic as it is then
-# (TorchRL's sota PPO; "What matters in on-policy RL" recommends it), or once per batch before the first epoch
-# with the collecting critic (CleanRL, rsl_rl, rl_games): E - 1 fewer critic passes over the batch
-ADVANTAGE_PASSES = ("every_epoch", "once_per_batch")
-
-
-@dataclass(frozen=True)
-class LoopSettings:
-    """The numbers :func:`learn` reads (the app fills them from ``trainer.*`` and ``ppo.kl_target``; TorchRL's names).
-
-    ``anneal_lr``: ``lr_i = lr_0 (1 - frames_i / total_frames)`` after every iteration; ``kl_target``: instead,
-    :func:`adaptive_kl_lr` sets the rate from every minibatch's KL (the loss must be built with ``kl=True``);
-    ``max_grad_norm``: the global gradient norm is clipped to it (None: not clipped); ``advantage_pass``:
-    ``"every_epoch"`` re-estimates advantages and value targets with the current critic before each epoch,
-    ``"once_per_batch"`` only before the first (the same update with one epoch; a value clip then clips around
-    the collecting critic's values, as rl_games' does, not the epoch's); ``compile``: the loss's forward
-    (actor, critic and the PPO terms) runs through ``torch.compile`` (inductor), compiled at the first minibatch.
-
-    Example:
-        >>> LoopSettings(total_frames=4096, num_minibatches=0)
-        Traceback (most recent call last):
-        ...
-        ValueError: num_minibatches must be at least 1, got 0
-    """
-
-    total_frames: int
-    num_epochs: int = 5
-    num_minibatches: int = 4
-    max_grad_norm: float | None = 1.0
-    anneal_lr: bool = True
-    kl_target: float | None = None
-    advantage_pass: str = "every_epoch"
-    compile: bool = False
-
-    def __post_init__(self):
-        for name in ("total_frames", "num_epochs", "num_minibatches"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if self.kl_target is not None and self.kl_target <= 0:
-            raise ValueError(f"the KL target must be positive, got {self.kl_target}")
-        if self.advantage_pass not in ADVANTAGE_PASSES:
-            raise ValueError(
-                f"advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {self.advantage_pass!r}"
-            )
-
-
-@dataclass
-class Progress:
-    """Frames collected and optimiser steps taken so far: the loop's counters, checkpointed as ``"state"``."""
-
-    collected_frames: int = 0
-    optim_steps: int = 0
-
-    def state_dict(self) -> dict[str, int]:
-        return {"collected_frames": self.collected_frames, "optim_steps": self.optim_steps}
-
-    def load_state_dict(self, state_dict: dict[str, int]) -> None:
-        self.collected_frames = int(state_dict["collected_frames"])
-        self.optim_steps = int(state_dict["optim_steps"])
-
-
-@dataclass
-class TrainingRun:
-    """Everything :func:`learn` iterates with, built and (on resume) loaded by the caller.
-
-    Args:
-        collector: a TorchRL collector yielding batches ``[N, T]`` (``update_policy_weights_``, ``shutdown``).
-        loss: the PPO loss (:class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss`) on the mixed advantage.
-        estimator: :class:`~torchrl_ahrs.value.WeightedMultiGAE`: ``weights [K]``, ``shares [K]``.
-        optimizer: over the loss's parameters.
-        scheduler: a :class:`~torchrl_ahrs.scheduling.RuleScheduler` (``observe_batch``, ``step``, ``close``).
-        logger: a TorchRL logger (``log_scalar``).
-        settings: :class:`LoopSettings`.
-        generator: draws the minibatch permutations (on the batch's device).
-        observation_norms: ``(normaliser, observation key)`` pairs updated after each update.
-        value_norm: the critic heads' TorchRL ``ValueNorm`` (``ppo.value_norm``): the loss regresses value targets
-            standardised with it (:mod:`~torchrl_ahrs.training.value_norm`), GAE reads the critic in reward units.
-        console: called as ``console(batch, metrics)`` after the iteration's scalars are logged.
-        video, checkpoint: called once per iteration, in the log and checkpoint sections.
-        progress: the loop's counters (loaded on resume).
-
-    Example:
-        >>> import tempfile, torch
-        >>> from tensordict.nn import NormalParamExtractor, TensorDictModule
-        >>> from torchrl.collectors import Collector
-        >>> from torchrl.envs import TransformedEnv
-        >>> from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
-        >>> from torchrl.record.loggers import CSVLogger
-        >>> from torchrl_ahrs import ComponentRewardSum, HybridClipPPOLoss, MultiHeadCritic, RewardComponents
-        >>> from torchrl_ahrs import RandomSelector, RuleScheduler, load_repository
-        >>> from torchrl_ahrs.envs.tasks.point_reach import PointReachEnv
-        >>> names = ["distance", "arrival", "ctrl"]
-        >>> env = TransformedEnv(PointReachEnv(num_envs=4, max_episode_steps=8),
-        ...     RewardComponents(names, term_keys={c: ("info", f"reward_{c}") for c in names}))
-        >>> _ = env.append_transform(ComponentRewardSum([*names, "total"]))
-        >>> actor = ProbabilisticActor(TensorDictModule(torch.nn.Sequential(MLP(6, 4, num_cells=[16]),
-        ...     NormalParamExtractor()), ["observation"], ["loc", "scale"]), in_keys=["loc", "scale"],
-        ...     distribution_class=TanhNormal, return_log_prob=True)
-        >>> critic = TensorDictModule(MultiHeadCritic(6, 3, hidden_sizes=[16]), ["observation"], ["state_value"])
-        >>> loss = HybridClipPPOLoss(actor, critic, components=names).make_value_estimator(gamma=0.99, lmbda=0.95)
-        >>> scheduler = RuleScheduler(loss.value_estimator, selector=RandomSelector(load_repository(), seed=0),
-        ...                           interval=1)
-        >>> run = TrainingRun(Collector(env, actor, frames_per_batch=64, total_frames=128), loss,
-        ...     loss.value_estimator, torch.optim.Adam(loss.parameters(), lr=3e-4), scheduler,
-        ...     CSVLogger("demo", tempfile.mkdtemp()), LoopSettings(total_frames=128, num_epochs=2, num_minibatches=2))
-        >>> metrics = learn(run)
-        >>> run.progress.state_dict(), sorted(metrics)[:3]
-        ({'collected_frames': 128, 'optim_steps': 8}, ['episodes', 'frames_per_second', 'return/arrival'])
-    """
-
-    collector: Any
-    loss: Any
-    estimator: Any
-    optimizer: torch.optim.Optimizer
-    scheduler: Any
-    logger: Any
-    settings: LoopSettings
-    generator: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
-    observation_norms: Sequence[tuple[RunningNorm, str]] = ()
-    value_norm: Any = None
-    console: Callable[[TensorDictBase, dict[str, float]], Any] | None = None
-    video: Callable[[], None] | None = None
-    checkpoint: Callable[[], None] | None = None
-    progress: Progress = field(default_factory=Progress)
 
 
 def learn(run: TrainingRun) -> dict[str, float]:
@@ -271,78 +148,23 @@ def learn(run: TrainingRun) -> dict[str, float]:
             for name, value in metrics.items():
                 run.logger.log_scalar(name, value, step=frames)
             latest.update(metrics)
-            if run.console is not None:
-                run.console(batch, metrics)  # the table's weights and shares: this iteration's, from one update
-            if run.video is not None:
-                run.video()
 
-            # ---- 7. checkpoint: last, so it holds the state the next iteration starts from -------------------
-            if run.checkpoint is not None:
-                run.checkpoint()
+            # ---- 7. after the iteration: console line, video clip, checkpoint (last: it holds the state the next
+            # iteration starts from); the table's weights and shares are this iteration's, from one update ------
+            for after in run.after_iteration:
+                after(batch, metrics)
             if frames >= settings.total_frames:
                 break
         run.scheduler.close()  # waits for (and applies) a decision still being made in the background
     except AuxiliaryRewardError:
         # the file's failure ends the run; what was learnt so far is kept: the state the failed iteration began
         # with (a resumed run, after the file is fixed, starts there)
-        save = getattr(run.checkpoint, "save_after_failure", None)
-        if save is not None:
-            save()
+        if run.after_failure is not None:
+            run.after_failure()
         raise
     finally:
         run.collector.shutdown()
     return latest
-
-
-def adaptive_kl_lr(
-    lr: float, kl: float, target: float, min_lr: float = 1e-5, max_lr: float = 1e-2, factor: float = 1.5
-) -> float:
-    """The learning rate after a minibatch whose KL from the collecting policy is ``kl`` (rsl_rl's and rl_games' rule)::
-
-        KL = E_s[ KL( N(mu_old, sigma_old) || N(mu_new, sigma_new) ) ]      (summed over action dims)
-        KL > 2 * target   ->  lr <- max(lr / 1.5, min_lr)
-        KL < target / 2   ->  lr <- min(lr * 1.5, max_lr)
-
-    The factors 2, 1/2 and 1.5 are those of rsl_rl's ``PPO.update`` (``schedule="adaptive"``,
-    ``desired_kl=0.01``, lr bounded to [1e-5, 1e-2]) and rl_games' ``AdaptiveScheduler``
-    (``kl_threshold``: 0.008 in its ``mujoco/ant_envpool.yaml``, bounds [1e-6, 1e-2]). The KL is the ``"kl"``
-    output of :class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss` built with ``kl=True``: the closed form
-    between the Gaussians *before* the tanh squash, as rsl_rl reads it from its loss forward pass (KL is
-    invariant under a bijection applied to both distributions, so it equals the KL of the squashed policies).
-
-    Example:
-        >>> adaptive_kl_lr(1e-3, kl=0.001, target=0.01)  # barely moved: x 1.5
-        0.0015
-        >>> adaptive_kl_lr(9e-3, kl=0.0, target=0.01)  # bounded by max_lr
-        0.01
-    """
-    if target <= 0:
-        raise ValueError(f"the KL target must be positive, got {target}")
-    if kl > 2.0 * target:
-        return max(lr / factor, min_lr)  # too far from the collecting policy: smaller steps
-    if kl < 0.5 * target:
-        return min(lr * factor, max_lr)  # barely moved: larger steps
-    return lr
-
-
-def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: torch.Generator) -> list[TensorDictBase]:
-    """One PPO epoch's minibatches of ``batch [*B]``: every transition exactly once, in a fresh random order
-    (sampling without replacement), as ``num_minibatches`` contiguous views of one gather (a gather per
-    minibatch would cost a TensorDict index per key).
-
-    Example:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> batch = TensorDict({"x": torch.arange(16.0).reshape(2, 8)}, [2, 8])
-        >>> minibatches = epoch_minibatches(batch, 4, torch.Generator().manual_seed(0))
-        >>> [len(mb) for mb in minibatches], sorted(torch.cat([mb["x"] for mb in minibatches]).tolist()) == list(range(16))
-        ([4, 4, 4, 4], True)
-    """
-    flat = batch.reshape(-1)
-    order = torch.randperm(flat.shape[0], generator=generator, device=generator.device)
-    sizes = [len(chunk) for chunk in order.chunk(num_minibatches)]
-    # served last first: the order of the Trainer hook this loop replaced, so seeded runs keep their numbers
-    return list(flat[order].split(sizes, 0))[::-1]
 
 
 class FiniteGuard:
@@ -379,3 +201,126 @@ class FiniteGuard:
                     "(check the task's reward terms and physics stability); training stopped before using it"
                 )
         return batch
+
+
+def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: torch.Generator) -> list[TensorDictBase]:
+    """One PPO epoch's minibatches of ``batch [*B]``: every transition exactly once, in a fresh random order
+    (sampling without replacement), as ``num_minibatches`` contiguous views of one gather (a gather per
+    minibatch would cost a TensorDict index per key).
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> batch = TensorDict({"x": torch.arange(16.0).reshape(2, 8)}, [2, 8])
+        >>> minibatches = epoch_minibatches(batch, 4, torch.Generator().manual_seed(0))
+        >>> [len(mb) for mb in minibatches], sorted(torch.cat([mb["x"] for mb in minibatches]).tolist()) == list(range(16))
+        ([4, 4, 4, 4], True)
+    """
+    flat = batch.reshape(-1)
+    order = torch.randperm(flat.shape[0], generator=generator, device=generator.device)
+    sizes = [len(chunk) for chunk in order.chunk(num_minibatches)]
+    # served last first: the order of the Trainer hook this loop replaced, so seeded runs keep their numbers
+    return list(flat[order].split(sizes, 0))[::-1]
+
+
+def adaptive_kl_lr(
+    lr: float, kl: float, target: float, min_lr: float = 1e-5, max_lr: float = 1e-2, factor: float = 1.5
+) -> float:
+    """The learning rate after a minibatch whose KL from the collecting policy is ``kl`` (rsl_rl's and rl_games' rule)::
+
+        KL = E_s[ KL( N(mu_old, sigma_old) || N(mu_new, sigma_new) ) ]      (summed over action dims)
+        KL > 2 * target   ->  lr <- max(lr / 1.5, min_lr)
+        KL < target / 2   ->  lr <- min(lr * 1.5, max_lr)
+
+    The factors 2, 1/2 and 1.5 are those of rsl_rl's ``PPO.update`` (``schedule="adaptive"``,
+    ``desired_kl=0.01``, lr bounded to [1e-5, 1e-2]) and rl_games' ``AdaptiveScheduler``
+    (``kl_threshold``: 0.008 in its ``mujoco/ant_envpool.yaml``, bounds [1e-6, 1e-2]). The KL is the ``"kl"``
+    output of :class:`~torchrl_ahrs.training.loss.HybridClipPPOLoss` built with ``kl=True``: the closed form
+    between the Gaussians *before* the tanh squash, as rsl_rl reads it from its loss forward pass (KL is
+    invariant under a bijection applied to both distributions, so it equals the KL of the squashed policies).
+
+    Example:
+        >>> adaptive_kl_lr(1e-3, kl=0.001, target=0.01)  # barely moved: x 1.5
+        0.0015
+        >>> adaptive_kl_lr(9e-3, kl=0.0, target=0.01)  # bounded by max_lr
+        0.01
+    """
+    if target <= 0:
+        raise ValueError(f"the KL target must be positive, got {target}")
+    if kl > 2.0 * target:
+        return max(lr / factor, min_lr)  # too far from the collecting policy: smaller steps
+    if kl < 0.5 * target:
+        return min(lr * factor, max_lr)  # barely moved: larger steps
+    return lr
+
+
+def check_finite_update(
+    value: torch.Tensor,
+    losses: TensorDictBase,
+    minibatch: TensorDictBase,
+    components: Sequence[str],
+    optim_step: int,
+    what: str = "loss",
+) -> None:
+    """Raises ``FloatingPointError`` (one line naming the loss terms and the reward components to blame) when
+    ``value`` (the summed loss, or the gradient's global norm) is not finite.
+
+    A finite but huge reward (an auxiliary reward of 1e30) passes every check of the batch and still turns the
+    critic's loss into NaN; the line names each component whose value targets are non-finite or beyond 1e15.
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> losses = TensorDict({"loss_critic": torch.tensor(float("nan")), "loss_objective": torch.tensor(0.1)})
+        >>> minibatch = TensorDict({"value_target": torch.tensor([[1.0, 1e30]])}, [1])
+        >>> check_finite_update(losses["loss_critic"], losses, minibatch, ["pos", "aux"], 7)
+        Traceback (most recent call last):
+        ...
+        FloatingPointError: non-finite loss at optimiser step 7 in loss_critic (reward component 'aux': value targets up to 1e+30); update not applied, training stopped
+    """
+    if bool(torch.isfinite(value).all()):
+        return
+    terms = [key for key, term in losses.items() if key.startswith("loss_") and not bool(torch.isfinite(term).all())]
+    blamed = []
+    targets = minibatch.get("value_target", None)
+    if targets is not None and targets.shape[-1] == len(components):
+        magnitude = targets.detach().abs().reshape(-1, len(components)).nan_to_num(nan=float("inf")).amax(0)  # [K]
+        blamed = [
+            f"{name!r}: value targets up to {float(m):.0e}" for name, m in zip(components, magnitude, strict=True)
+        ]
+        blamed = [text for text, m in zip(blamed, magnitude, strict=True) if not m < 1e15]
+    where = f" in {', '.join(terms)}" if terms else ""
+    why = f" (reward component {'; '.join(blamed)})" if blamed else ""
+    raise FloatingPointError(
+        f"non-finite {what} at optimiser step {optim_step}{where}{why}; update not applied, training stopped"
+    )
+
+
+def epoch_means(losses: Sequence[TensorDictBase]) -> dict[str, float]:
+    """``{"train/<term>": mean}`` over one epoch's minibatch outputs ``losses`` (each term averaged over the
+    minibatches, then over its elements; empty terms left out), without autograd.
+
+    The mean is the running mean the loop used to update after every minibatch, ``m_n = m_(n-1) (n - 1) / n +
+    x_n / n``, computed here once per epoch over all terms at once: the same float operations in the same order,
+    so the logged numbers stay those of earlier runs bit for bit.
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> epoch_means([TensorDict({"loss_critic": torch.tensor(1.0)}), TensorDict({"loss_critic": torch.tensor(2.0)})])
+        {'train/loss_critic': 1.5}
+    """
+    if not losses:
+        return {}
+    with torch.no_grad():
+        stacked = {key: torch.stack([step.get(key) for step in losses]) for key in losses[0].keys()}  # [M, *shape]
+        by_dtype: dict[torch.dtype, list[str]] = {}
+        for key, values in stacked.items():
+            by_dtype.setdefault(values.dtype, []).append(key)
+        means: dict[str, torch.Tensor] = {}
+        for keys in by_dtype.values():  # one [M, P] table per dtype: a cat would promote the others
+            table = torch.cat([stacked[key].reshape(len(losses), -1) for key in keys], 1)
+            mean = table[0]
+            for n in range(2, len(losses) + 1):
+                mean = mean * (n - 1) / n + table[n - 1] / n
+            for key, part in zip(keys, mean.split([stacked[key][0].numel() for key in keys]), strict=True):
+                means[key] = part.reshape(stacked[key].shape[1:])
+        return {f"train/{key}": means[key].mean().item() for key in stacked if means[key].numel()}

@@ -15,11 +15,10 @@ from torchrl_ahrs.app.shared.redaction import is_secret_key
 from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
-from torchrl_ahrs.training.loop import ADVANTAGE_PASSES
 from torchrl_ahrs.training.models import DISTRIBUTIONS
+from torchrl_ahrs.training.run import ADVANTAGE_PASSES
 
 __all__ = [
-    "ConfigError",
     "check_device",
     "load_saved_config",
     "num_minibatches",

@@ -4,7 +4,7 @@ A checkpoint (:attr:`RunDirectory.checkpoint <torchrl_ahrs.app.shared.run_dir.Ru
 state of the run's one registry, ``{name: object with state_dict / load_state_dict}``, which
 :func:`torchrl_ahrs.app.train.iteration.train` builds; each thing the next iteration depends on has one entry:
 
-- ``state``: the loop's counters (collected frames, optimiser steps; :class:`~torchrl_ahrs.training.loop.Progress`);
+- ``state``: the loop's counters (collected frames, optimiser steps; :class:`~torchrl_ahrs.training.run.Progress`);
 - ``collector``: frame and iteration counters, the environments (through
   :class:`~torchrl_ahrs.envs.common.snapshot.BaseEnvSnapshot`: every simulation's integration state,
   counters, targets/commands and reset-noise generator) and the carried tensordict (the last
@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
 
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
@@ -214,8 +215,8 @@ class CheckpointHook:
     """Saves ``state_fn()`` (the registry's state) atomically every ``interval`` training iterations and
     at the last one (``is_last()`` true).
 
-    The loop calls it after everything else in an iteration, so that the saved state is the one the next
-    iteration starts from. Its own state (the iteration counter and the component names, which an
+    The loop calls it after everything else in an iteration (the last of its ``after_iteration`` callables), so
+    that the saved state is the one the next iteration starts from. Its own state (the iteration counter and the component names, which an
     evaluation reads to rebuild the critic-free policy) is a registry entry too.
 
     Example:
@@ -248,7 +249,8 @@ class CheckpointHook:
         self.state_after_failure = state_after_failure or state_fn
         self.iteration = 0
 
-    def __call__(self) -> None:
+    def __call__(self, batch: TensorDictBase | None = None, metrics: Mapping[str, float] | None = None) -> None:
+        # (batch, metrics): what the loop hands every after-iteration callable; the state is the registry's
         self.iteration += 1
         if self.iteration % self.interval == 0 or self.is_last():  # the last one before the collector shuts down
             self.save()

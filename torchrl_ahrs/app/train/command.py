@@ -13,7 +13,8 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from torchrl_ahrs.app.shared.config import ConfigError, load_saved_config, refuse_renamed
+from torchrl_ahrs.app.shared.config import load_saved_config, refuse_renamed
+from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.app.train.iteration import train
 from torchrl_ahrs.app.train.preflight import check_command_line

@@ -47,7 +47,8 @@ from torchrl_ahrs.app.train.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.console import ConsoleProgress
 from torchrl_ahrs.training.loggers import build_logger
-from torchrl_ahrs.training.loop import LoopSettings, Progress, TrainingRun, learn
+from torchrl_ahrs.training.loop import learn
+from torchrl_ahrs.training.run import LoopSettings, Progress, TrainingRun
 
 log = logging.getLogger("torchrl_ahrs.train")
 
@@ -174,9 +175,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         generator=generator,
         observation_norms=norms,
         value_norm=getattr(estimator, "value_norm", None),
-        console=console,
-        video=video,
-        checkpoint=checkpoint,
+        # after each iteration, in this order; the checkpoint last, so it holds the state the next one starts from
+        after_iteration=[after for after in (console, video, checkpoint) if after is not None],
+        after_failure=checkpoint.save_after_failure,  # an auxiliary reward's failure: keep what was learnt so far
         progress=progress,
     )
     latest: dict[str, float] = {}

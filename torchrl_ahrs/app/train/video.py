@@ -16,14 +16,14 @@ Rendering needs a headless GL backend chosen before ``mujoco`` is imported: run 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from omegaconf import DictConfig
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 from torchrl.record import VideoRecorder
 from torchrl.record.loggers import Logger
@@ -124,7 +124,8 @@ class VideoLog(TrainerHookBase):
         self.recorder = VideoRecorder(self.logger, tag="policy", in_keys=["pixels"], skip=1)
         self.iteration = 0
 
-    def __call__(self) -> None:
+    def __call__(self, batch: TensorDictBase | None = None, metrics: Mapping[str, float] | None = None) -> None:
+        # (batch, metrics): what the loop hands every after-iteration callable; a clip runs an episode of its own
         self.iteration += 1
         if self.iteration % self.interval:
             return
