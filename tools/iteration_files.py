@@ -12,8 +12,11 @@ iteration warm up, and traces the second from the line ``for batch in run.collec
     names ``training/loss.py`` although ``nn.Module.__call__`` sits in between;
 (b) transitive: every package file that runs during the iteration,
 
-each split into ``envs/`` (the task's environment) and the rest. Threads started during the iteration are
-traced too (they count towards (b) only).
+each split into the task's environment and the rest. The environment is ``envs/`` and whatever runs only inside
+its ``step``: the collector steps a TorchRL ``TransformedEnv``, so a reward transform the task's env carries
+(``rewards/auxiliary.py``'s ``AuxiliaryReward``) is the environment's when no line of ``learn()`` reaches its
+file except through an ``EnvBase`` or ``Transform`` frame. Threads started during the iteration are traced
+too (they count towards (b) only).
 
 Usage::
 
@@ -60,6 +63,12 @@ class IterationFiles:
 
     direct: set[str] = field(default_factory=set)
     transitive: set[str] = field(default_factory=set)
+    # direct files reached at least once other than from inside the environment's step
+    outside_env_step: set[str] = field(default_factory=set)
+
+    def environment(self, names: set[str]) -> set[str]:
+        """The task's environment among ``names``: ``envs/`` files, and direct files only its step reached."""
+        return {name for name in names if name.startswith("envs/") or name not in self.outside_env_step}
 
 
 def _package_file(frame: FrameType) -> str | None:
@@ -90,10 +99,14 @@ def trace_iteration(run: Callable[[], Any], iteration: int = TRACED) -> Iteratio
             return None
         files.transitive.add(name)
         caller = frame.f_back  # the first package frame up the stack: learn's makes this file a direct one
+        in_env_step = _is_env_frame(frame)
         while caller is not None and _package_file(caller) is None:
+            in_env_step = in_env_step or _is_env_frame(caller)
             caller = caller.f_back
         if caller is state["learn"]:
             files.direct.add(name)
+            if not in_env_step:
+                files.outside_env_step.add(name)
         return None
 
     sys.settrace(on_call)
@@ -105,8 +118,18 @@ def trace_iteration(run: Callable[[], Any], iteration: int = TRACED) -> Iteratio
         threading.settrace(None)  # type: ignore[arg-type]
     if state["passes"] <= iteration:
         raise RuntimeError(f"learn() ran {state['passes']} iteration(s); {iteration + 1} are needed")
-    files.direct.add(Path(code.co_filename).relative_to(PACKAGE).as_posix())  # the loop's own file
+    own = Path(code.co_filename).relative_to(PACKAGE).as_posix()  # the loop's own file
+    files.direct.add(own)
+    files.outside_env_step.add(own)
     return files
+
+
+def _is_env_frame(frame: FrameType) -> bool:
+    """Whether ``frame`` is a method of a TorchRL environment or transform (the environment's step)."""
+    from torchrl.envs import EnvBase, Transform
+
+    owner = frame.f_locals.get("self")
+    return isinstance(owner, (EnvBase, Transform))
 
 
 def trace_cassie_ahrs() -> IterationFiles:
@@ -128,18 +151,19 @@ def trace_cassie_ahrs() -> IterationFiles:
             raise
 
 
-def split(names: set[str]) -> tuple[list[str], list[str]]:
-    """``(envs/ files, the rest)``, each sorted."""
-    envs = sorted(name for name in names if name.startswith("envs/"))
-    return envs, sorted(names - set(envs))
+def split(names: set[str], files: IterationFiles | None = None) -> tuple[list[str], list[str]]:
+    """``(the environment's files, the rest)``, each sorted; without ``files``, the environment is ``envs/``."""
+    envs = files.environment(names) if files is not None else {name for name in names if name.startswith("envs/")}
+    return sorted(envs), sorted(names - envs)
 
 
 def main() -> int:
     files = trace_cassie_ahrs()
     for title, names in (("(a) direct, from learn()'s frame", files.direct), ("(b) transitive", files.transitive)):
-        envs, rest = split(names)
-        print(f"{title}: {len(names)} files, {len(rest)} outside envs/, {len(envs)} in envs/")
-        for group, members in (("outside envs/", rest), ("envs/", envs)):
+        envs, rest = split(names, files if names is files.direct else None)
+        where = "the environment (envs/, and what only its step reached)" if names is files.direct else "envs/"
+        print(f"{title}: {len(names)} files, {len(rest)} besides the environment, {len(envs)} in {where}")
+        for group, members in (("besides the environment", rest), ("environment", envs)):
             print(f"  {group}:", *(f"\n    {name}" for name in members) or [" none"], sep="")
     return 0
 
