@@ -159,10 +159,16 @@ def split(names: set[str], files: IterationFiles | None = None) -> tuple[list[st
 
 def main() -> int:
     files = trace_cassie_ahrs()
-    for title, names in (("(a) direct, from learn()'s frame", files.direct), ("(b) transitive", files.transitive)):
-        envs, rest = split(names, files if names is files.direct else None)
-        where = "the environment (envs/, and what only its step reached)" if names is files.direct else "envs/"
-        print(f"{title}: {len(names)} files, {len(rest)} besides the environment, {len(envs)} in {where}")
+    parts = (
+        (
+            "(a) direct, from learn()'s frame",
+            split(files.direct, files),
+            "the environment (envs/, and what only its step reached)",
+        ),
+        ("(b) transitive", split(files.transitive), "envs/"),
+    )
+    for title, (envs, rest), where in parts:
+        print(f"{title}: {len(envs) + len(rest)} files, {len(rest)} besides the environment, {len(envs)} in {where}")
         for group, members in (("besides the environment", rest), ("environment", envs)):
             print(f"  {group}:", *(f"\n    {name}" for name in members) or [" none"], sep="")
     return 0

@@ -30,7 +30,7 @@ CLASSES = {
 TABLES = [("ant", "scales", DEFAULT_SCALES), ("cassie", "reward_scales", CASSIE_REWARD_SCALES)]
 
 
-def flat_settings(record, prefix: str = "") -> dict[str, object]:
+def flat_settings(record) -> dict[str, object]:
     """The record's fields by name, nested records flattened into their fields (``commands.resampling_time_s``
     is also reachable as ``resampling_time_s``: the constructors take the nested fields flat)."""
     fields = {}
