@@ -84,3 +84,20 @@ def test_a_checkpoint_of_the_trainer_layout_is_refused_and_the_run_left_alone(ru
     with pytest.raises(ConfigError, match="no actor, critic entries: it was written by an older version"):
         train(make_cfg(*TINY, f"resume={old.path}"), old.path)
     assert old.scalar("weight/distance").read_text() == rows  # nothing truncated before the refusal
+
+
+@pytest.mark.parametrize("distribution", ["tanh_normal", "normal"])
+def test_a_policy_that_does_not_move_sees_ratio_one_on_every_batch_it_collected(tmp_path, distribution):
+    """With lr 1e-12 (Adam moves each weight by ~1e-12; 0 is refused as a typo) the policy the loss scores is the one that collected, batch after batch (observation statistics
+    move between batches): every ratio is 1 and nothing is clipped. A mismatch between the log-probabilities stored
+    at collection and those the loss recomputes (e.g. the squashed action's inverse, or statistics updated before
+    the update) would show as ratios away from 1, and as a KL the adaptive rule could not lower."""
+    run = RunDirectory(tmp_path)
+    train(
+        make_cfg(*TINY, "trainer.lr=1e-12", "trainer.anneal_lr=false", f"model.distribution={distribution}"), run.path
+    )
+    _, max_ratio = read_scalar(run.scalar("train/max_ratio"))
+    _, clip_fraction = read_scalar(run.scalar("train/clip_fraction"))
+    assert len(max_ratio) == ITERATIONS
+    assert max_ratio.tolist() == pytest.approx([1.0] * ITERATIONS, abs=1e-4)
+    assert clip_fraction.tolist() == [0.0] * ITERATIONS
