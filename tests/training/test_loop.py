@@ -89,10 +89,10 @@ def test_a_checkpoint_of_the_trainer_layout_is_refused_and_the_run_left_alone(ru
 @pytest.mark.parametrize("distribution", ["tanh_normal", "normal"])
 def test_a_policy_that_does_not_move_sees_ratio_one_on_every_batch_it_collected(tmp_path, distribution):
     """With lr 1e-12 (Adam moves each weight by ~1e-12; 0 is refused as a typo) the policy the loss scores is the
-    one that collected, batch after batch (observation statistics move between batches): every ratio is 1 and
-    nothing is clipped. A mismatch between the log-probabilities stored
-    at collection and those the loss recomputes (e.g. the squashed action's inverse, or statistics updated before
-    the update) would show as ratios away from 1, and as a KL the adaptive rule could not lower."""
+    one that collected, batch after batch (the observation statistics move between batches): every ratio is 1 and
+    nothing is clipped. A mismatch between the log-probabilities stored at collection and those the loss recomputes
+    (e.g. the squashed action's inverse, or statistics updated before the update) would show as ratios away from 1,
+    and as a KL the adaptive rule could not lower."""
     run = RunDirectory(tmp_path)
     train(
         make_cfg(*TINY, "trainer.lr=1e-12", "trainer.anneal_lr=false", f"model.distribution={distribution}"), run.path
