@@ -54,6 +54,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
     max_norm = math.inf if settings.max_grad_norm is None else settings.max_grad_norm
     for group in optimizer.param_groups:  # lr_0 of the anneal, saved with the optimiser (torch's schedulers' key)
         group.setdefault("initial_lr", group["lr"])
+    adapted = [group for group in optimizer.param_groups if group.get("kl_adaptive", True)]  # the KL rule's groups
     if settings.kl_target is not None and not getattr(run.loss, "kl", False):
         raise ValueError("LoopSettings.kl_target reads the loss's 'kl' output: build HybridClipPPOLoss(..., kl=True)")
     guard = FiniteGuard(components)
@@ -96,12 +97,11 @@ def learn(run: TrainingRun) -> dict[str, float]:
                     progress.optim_steps += 1
                     losses = loss_forward(minibatch)
                     # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
-                    # collecting to the current policy (rsl_rl's adaptive rule)
+                    # collecting to the current policy
+                    # (rsl_rl's adaptive rule) in every parameter group not flagged kl_adaptive=False
                     if settings.kl_target is not None:
-                        lr = adaptive_kl_lr(
-                            optimizer.param_groups[0]["lr"], losses.get("kl").item(), settings.kl_target
-                        )
-                        for group in optimizer.param_groups:
+                        lr = adaptive_kl_lr(adapted[0]["lr"], losses.get("kl").item(), settings.kl_target)
+                        for group in adapted:
                             group["lr"] = lr
                         if logged:
                             losses.set("lr", torch.tensor(lr))

@@ -19,6 +19,9 @@ from torchrl_ahrs.training.models import RunningNorm
 # (TorchRL's sota PPO; "What matters in on-policy RL" recommends it), or once per batch before the first epoch
 # with the collecting critic (CleanRL, rsl_rl, rl_games): E - 1 fewer critic passes over the batch
 ADVANTAGE_PASSES = ("every_epoch", "once_per_batch")
+# the parameters whose rate the adaptive-KL rule sets: all (rsl_rl: actor and critic) | actor (the critic's
+# group is built with kl_adaptive=False and keeps its rate)
+KL_ADAPTS = ("all", "actor")
 
 
 @dataclass(frozen=True)

