@@ -129,3 +129,18 @@ def test_a_compiled_loss_trains_like_the_eager_one(tmp_path):
         # explained variance divides by the targets' variance over a 32-transition minibatch: looser
         tolerance = 1e-2 if name == "explained_variance" else 1e-4
         torch.testing.assert_close(torch.tensor(compiled_curves[name]), torch.tensor(values), rtol=tolerance, atol=1e-5)
+
+
+def test_with_kl_adapts_actor_the_kl_rule_sets_the_actors_rate_and_the_critic_keeps_trainer_lr(tmp_path):
+    small_target = ("ppo.kl_target=1e-6", "trainer.lr=1e-3")  # every minibatch moves the policy past 2e-6: lr / 1.5
+    _, shared = run_once(tmp_path, "all", *small_target)
+    (group,) = shared["optimizer"]["param_groups"]  # rsl_rl's rule: one rate for actor and critic
+    assert group["lr"] < 1e-3
+    _, split = run_once(tmp_path, "actor", *small_target, "ppo.kl_adapts=actor")
+    actor, critic = split["optimizer"]["param_groups"]
+    assert actor["lr"] < 1e-3 and critic["lr"] == 1e-3 and critic["kl_adaptive"] is False
+    critic_tensors = [key for key in split["critic"] if key.endswith(("weight", "bias"))]
+    assert len(critic["params"]) == len(critic_tensors) > 0  # the critic's parameters and nothing else
+    assert len(actor["params"]) + len(critic["params"]) == len(group["params"])
+    with pytest.raises(ConfigError, match="ppo.kl_adapts must be one of all, actor, got 'critic'"):
+        train(make_cfg(*TINY, "ppo.kl_adapts=critic"), tmp_path / "refused")
