@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 
 from torchrl_ahrs import ConstantSelector, FixedSelector, RuleScheduler, load_repository
-from torchrl_ahrs.training.console import LINE_WIDTH, ConsoleProgress
+from torchrl_ahrs.training.loggers import LINE_WIDTH, ConsoleProgress
 from torchrl_ahrs.value.functional import effective_shares
 
 NAMES = ["forward_velocity_tracking", "ctrl", "survive"]  # a long name must not widen the line

@@ -46,8 +46,7 @@ from torchrl_ahrs.app.train.checkpoint import (
 from torchrl_ahrs.app.train.preflight import check_config, check_task_rewards
 from torchrl_ahrs.app.train.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
-from torchrl_ahrs.training.console import ConsoleProgress
-from torchrl_ahrs.training.loggers import build_logger
+from torchrl_ahrs.training.loggers import ConsoleProgress, build_logger
 from torchrl_ahrs.training.loop import learn
 from torchrl_ahrs.training.run import LoopSettings, Progress, TrainingRun
 
