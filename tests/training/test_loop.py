@@ -4,6 +4,7 @@ of the layout before the loop."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from conftest import make_cfg
@@ -102,3 +103,27 @@ def test_a_policy_that_does_not_move_sees_ratio_one_on_every_batch_it_collected(
     assert len(max_ratio) == ITERATIONS
     assert max_ratio.tolist() == pytest.approx([1.0] * ITERATIONS, abs=1e-4)
     assert clip_fraction.tolist() == [0.0] * ITERATIONS
+
+
+def test_the_total_explained_variance_is_that_of_the_summed_heads_on_the_collected_batch(tmp_path, monkeypatch):
+    from torchrl_ahrs.value import WeightedMultiGAE
+
+    calls: list[tuple[np.ndarray, np.ndarray]] = []  # every estimate's (value_target, state_value) [N, T, K]
+    forward = WeightedMultiGAE.forward
+
+    def recorded(self, tensordict, **kwargs):
+        out = forward(self, tensordict, **kwargs)
+        calls.append((out.get("value_target").numpy().copy(), out.get("state_value").numpy().copy()))
+        return out
+
+    monkeypatch.setattr(WeightedMultiGAE, "forward", recorded)
+    run = RunDirectory(tmp_path / "run")
+    train(make_cfg(*TINY), run.path)
+    first_estimates = calls[::EPOCHS]  # every_epoch: EPOCHS estimates per batch, the first with the collecting critic
+    logged = read_scalar(run.scalar("train/explained_variance_total"))[1]
+    assert len(first_estimates) == ITERATIONS == len(logged)
+    for (targets, values), value in zip(first_estimates, logged, strict=True):
+        total = targets.sum(-1).ravel()  # the three heads' λ-returns summed, by hand in NumPy
+        expected = 1.0 - np.var(total - values.sum(-1).ravel(), ddof=1) / np.var(total, ddof=1)
+        assert value == pytest.approx(expected, rel=1e-4, abs=1e-5)
+    assert not np.allclose(logged, read_scalar(run.scalar("train/explained_variance"))[1])  # not TorchRL's pooled one

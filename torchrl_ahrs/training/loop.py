@@ -16,7 +16,8 @@ In the order it runs (the section comments in :func:`learn` carry these numbers)
                      checkpoint of the run's state registry (every `interval` iterations and after the last)
 
 Below :func:`learn`, in the order it calls them, the helpers only it uses: :class:`FiniteGuard` (1),
-:func:`epoch_minibatches`, :func:`adaptive_kl_lr`, :func:`check_finite_update` and :func:`epoch_means` (3).
+:func:`total_explained_variance`, :func:`epoch_minibatches`, :func:`adaptive_kl_lr`, :func:`check_finite_update`
+and :func:`epoch_means` (3).
 
 The parts (:class:`~torchrl_ahrs.training.run.TrainingRun`) are built by :mod:`torchrl_ahrs.app.train.iteration`
 from the Hydra config, or by hand; this module never reads configuration. The loop is TorchRL's pieces composed
@@ -86,6 +87,9 @@ def learn(run: TrainingRun) -> dict[str, float]:
                         # advantages with the current critic: A_k, value_target [N, T, K], advantage = Σ_k w_k A_k
                         estimator(batch)
                         selected = batch.select(*keys, strict=False)  # shares the tensors; the sets stay out of batch
+                        if epoch == 0:  # the collecting critic's Σ_k V_k against the total it stands for
+                            targets, values = batch.get("value_target"), batch.get("state_value")
+                            metrics["train/explained_variance_total"] = total_explained_variance(targets, values)
                         if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
                             targets = selected.get("value_target")
                             if epoch == 0:  # the statistics absorb each batch once, before it is normalised with them
@@ -201,6 +205,22 @@ class FiniteGuard:
                     "(check the task's reward terms and physics stability); training stopped before using it"
                 )
         return batch
+
+
+def total_explained_variance(value_target: torch.Tensor, state_value: torch.Tensor) -> float:
+    """How much of the total λ-return's variance the critic's summed heads explain: ``[*B, K], [*B, K] -> float``.
+
+    The mixed advantage of equal weights reads ``V = Σ_k V_k``, so this is the number to compare with PPO's
+    one head; TorchRL's ``explained_variance`` pools the K heads (in normalised units under ``ppo.value_norm``).
+
+    Example:
+        >>> targets = torch.tensor([[1.0, 0.0], [0.0, 1.0], [2.0, 2.0]])
+        >>> total_explained_variance(targets, targets.flip(-1))  # each head wrong, the sums right
+        1.0
+    """
+    total = value_target.sum(-1).flatten()  # R = Σ_k R_k
+    error = total - state_value.sum(-1).flatten()  # R - Σ_k V_k
+    return float(1.0 - error.var() / total.var().clamp_min(1e-12))  # 1 - Var(R - V) / Var(R)
 
 
 def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: torch.Generator) -> list[TensorDictBase]:
