@@ -144,3 +144,20 @@ def test_with_kl_adapts_actor_the_kl_rule_sets_the_actors_rate_and_the_critic_ke
     assert len(actor["params"]) + len(critic["params"]) == len(group["params"])
     with pytest.raises(ConfigError, match="ppo.kl_adapts must be one of all, actor, got 'critic'"):
         train(make_cfg(*TINY, "ppo.kl_adapts=critic"), tmp_path / "refused")
+
+
+def test_a_kl_target_with_every_optimiser_group_flagged_is_refused_in_one_line(tmp_path, monkeypatch):
+    # a hand-built optimiser in which no group follows the KL rule would leave the target without effect
+    from torchrl_ahrs.app.train import iteration
+
+    build = iteration.build_optimizer
+
+    def all_flagged(*args, **kwargs):
+        optimizer = build(*args, **kwargs)
+        for group in optimizer.param_groups:
+            group["kl_adaptive"] = False
+        return optimizer
+
+    monkeypatch.setattr(iteration, "build_optimizer", all_flagged)
+    with pytest.raises(ValueError, match="every group is flagged: leave the actor's group unflagged"):
+        train(make_cfg(*TINY, "ppo.kl_target=0.01"), tmp_path / "run")

@@ -58,6 +58,11 @@ def learn(run: TrainingRun) -> dict[str, float]:
     adapted = [group for group in optimizer.param_groups if group.get("kl_adaptive", True)]  # the KL rule's groups
     if settings.kl_target is not None and not getattr(run.loss, "kl", False):
         raise ValueError("LoopSettings.kl_target reads the loss's 'kl' output: build HybridClipPPOLoss(..., kl=True)")
+    if settings.kl_target is not None and not adapted:
+        raise ValueError(
+            "LoopSettings.kl_target adapts the rate of the optimiser's groups not flagged kl_adaptive=False, and "
+            "every group is flagged: leave the actor's group unflagged"
+        )
     guard = FiniteGuard(components)
     # the loss's forward through inductor (actor, critic and the PPO terms, and so their backward); the module
     # itself stays the one the optimiser, the checkpoint and the collector know
