@@ -5,6 +5,9 @@
 prints, per run and per bin of ``--bin`` frames (default 0.5M), the mean per-step reward of ``--term``
 (default ``tracking_lin_vel``, in 10^-3; Cassie collects ~3.9 standing still and 20 following every command)
 and the episodes ended per batch (fewer = longer episodes). The RESULTS.md Cassie tables quote these numbers.
+
+A batch belongs to the bin where its frames start: rows are logged at the frames collected *after* the batch,
+so the last batch of a 2.5M-frame run (logged at 2 500 608) counts in "2-2.5M", not in a bin of its own.
 """
 
 from __future__ import annotations
@@ -23,8 +26,16 @@ def read_scalar(run_dir: Path, name: str) -> list[tuple[int, float]]:
         return [(int(row["step"]), float(row["value"])) for row in csv.DictReader(file)]
 
 
+def batch_starts(rows: list[tuple[int, float]]) -> list[tuple[int, float]]:
+    """``(first frame, value)`` per batch from rows logged at the frames collected after it: a batch starts
+    where the one before it ended (the first at 0)."""
+    ends = [frames for frames, _ in rows]
+    return [(start, value) for start, (_, value) in zip([0, *ends[:-1]], rows, strict=True)]
+
+
 def bin_means(rows: list[tuple[int, float]], width: int) -> dict[int, float]:
-    """Mean value per bin ``[b * width, (b + 1) * width)``, keyed by the bin's first frame."""
+    """Mean value per bin ``[b * width, (b + 1) * width)`` of ``(first frame, value)`` rows, keyed by the
+    bin's first frame."""
     sums: dict[int, list[float]] = {}
     for frames, value in rows:
         sums.setdefault(frames // width * width, []).append(value)
@@ -38,13 +49,17 @@ def main() -> None:
     parser.add_argument("--bin", type=int, default=500_000)
     args = parser.parse_args()
     for run_dir in args.runs:
-        term_rows = read_scalar(run_dir, f"reward/{args.term}")  # one row per batch
-        ended_rows = read_scalar(run_dir, "episodes")  # a row only for batches where an episode ended
+        logged = read_scalar(run_dir, f"reward/{args.term}")  # one row per batch, at the frames after it
+        term_rows = batch_starts(logged)
+        first_frame = {end: start for (end, _), (start, _) in zip(logged, term_rows, strict=True)}
+        # a row only for batches where an episode ended, placed at its batch's first frame
+        ended_rows = [(first_frame[end], count) for end, count in read_scalar(run_dir, "episodes")]
         cells = []
         for start, value in bin_means(term_rows, args.bin).items():
             batches = sum(1 for frames, _ in term_rows if start <= frames < start + args.bin)
             ended = sum(count for frames, count in ended_rows if start <= frames < start + args.bin)
-            cells.append(f"{start / 1e6:.1f}M: {value * 1e3:5.2f} eps/batch {ended / batches:4.1f}")
+            span = f"{start / 1e6:g}-{(start + args.bin) / 1e6:g}M"  # the bin [start, start + width)
+            cells.append(f"{span}: {value * 1e3:5.2f} eps/batch {ended / batches:4.1f}")
         print(f"{run_dir.name}: " + " | ".join(cells))
 
 

@@ -181,12 +181,15 @@ def test_bench_mjx_runs(monkeypatch, capsys):
     assert [row.split("|")[2].strip() for row in rows] == ["cpu", "mjx"]
 
 
-def test_curve_bins_averages_per_bin_and_counts_episodes_over_all_batches(tmp_path, monkeypatch, capsys):
-    """Oracle: hand-written CSVs. Bin 0 holds batches at 100 and 200 frames (reward 2e-3 and 4e-3, one episode
-    ended in one of them: 0.5 per batch); bin 1000 one batch (6e-3, three episodes)."""
+def test_curve_bins_bins_each_batch_where_its_frames_start_and_counts_episodes_over_all_batches(
+    tmp_path, monkeypatch, capsys
+):
+    """Oracle: hand-written CSVs, rows logged at the frames after each batch. The batches ending at 100, 200
+    and 1000 frames start at 0, 100 and 200, so bin [0, 1000) holds all three (reward 2e-3, 4e-3, 6e-3: mean
+    4e-3; four episodes ended: 4/3 per batch); the batch ending at 1100 starts bin [1000, 2000) (8e-3, none)."""
     scalars = tmp_path / "run" / "metrics" / "scalars"
     (scalars / "reward").mkdir(parents=True)
-    (scalars / "reward" / "tracking_lin_vel.csv").write_text("step,value\n100,0.002\n200,0.004\n1000,0.006\n")
+    (scalars / "reward" / "tracking_lin_vel.csv").write_text("step,value\n100,0.002\n200,0.004\n1000,0.006\n1100,0.008\n")
     (scalars / "episodes.csv").write_text("step,value\n200,1.0\n1000,3.0\n")
     out = run_script("learning/curve_bins.py", [str(tmp_path / "run"), "--bin", "1000"], monkeypatch, capsys)
-    assert out.strip() == "run: 0.0M:  3.00 eps/batch  0.5 | 0.0M:  6.00 eps/batch  3.0"
+    assert out.strip() == "run: 0-0.001M:  4.00 eps/batch  1.3 | 0.001-0.002M:  8.00 eps/batch  0.0"
