@@ -189,7 +189,9 @@ def test_curve_bins_bins_each_batch_where_its_frames_start_and_counts_episodes_o
     4e-3; four episodes ended: 4/3 per batch); the batch ending at 1100 starts bin [1000, 2000) (8e-3, none)."""
     scalars = tmp_path / "run" / "metrics" / "scalars"
     (scalars / "reward").mkdir(parents=True)
-    (scalars / "reward" / "tracking_lin_vel.csv").write_text("step,value\n100,0.002\n200,0.004\n1000,0.006\n1100,0.008\n")
+    (scalars / "reward" / "tracking_lin_vel.csv").write_text(
+        "step,value\n100,0.002\n200,0.004\n1000,0.006\n1100,0.008\n"
+    )
     (scalars / "episodes.csv").write_text("step,value\n200,1.0\n1000,3.0\n")
     out = run_script("learning/curve_bins.py", [str(tmp_path / "run"), "--bin", "1000"], monkeypatch, capsys)
     assert out.strip() == "run: 0-0.001M:  4.00 eps/batch  1.3 | 0.001-0.002M:  8.00 eps/batch  0.0"
