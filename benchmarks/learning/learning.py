@@ -18,7 +18,11 @@ Peers (``pip install -e ".[bench]"``; a peer whose package is absent is skipped,
   ``VecNormalize`` on gymnasium's Ant-v5; ``rsl_rl``: rsl-rl-lib's ``OnPolicyRunner`` with legged_gym's
   Cassie PPO on our ``CassieEnv`` (``rsl_rl_adapter.py``). Sources and numbers: ``learning_peers.py``.
 
-Protocol. Runs go one at a time (never two at once: 2 cores), each ``(peer, seed)`` in its own process.
+Protocol. Runs go one at a time by default, each ``(peer, seed)`` in its own process. ``--lanes 2`` runs two
+at once, seed by seed, so each of ours runs beside a peer's run of the same seed and both see the same load;
+every figure then holds only for that shared load (on 2 cores each run has about one core, which is what a
+lone run at ``--torch-threads 1`` uses anyway). A finished run is recorded in ``runs/<peer>_seed<s>/run.json``
+and a re-invocation with the same arguments reuses it, so a cut-off comparison continues with the runs it lacks.
 The budget counts from the process launch (interpreter start-up and construction included, for every
 peer); a run stops at the budget or the frame cap (``--frames``; default: each peer's own horizon, also
 its learning-rate annealing horizon: 1M frames for torchrl, sb3 and ours on ant_v5, 10M for ours on
@@ -57,7 +61,8 @@ import statistics
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -147,6 +152,7 @@ def run_ours(task: str, seed: int, args: argparse.Namespace, run_dir: Path) -> R
     cmd = [sys.executable, "-m", "torchrl_ahrs.train", f"task={task}", "method=ppo", f"seed={seed}"]
     cmd += [f"hydra.run.dir={run_dir}", "checkpoint.interval=1", f"trainer.torch_threads={args.torch_threads}"]
     cmd += [f"trainer.total_frames={args.frames}"] if args.frames else []
+    cmd += args.ours_overrides  # after the harness's own, so a user's override wins
     rows_path = run_dir / "metrics" / "scalars" / "reward" / "total.csv"  # one row per iteration, after collection
     stamps: dict[int, float] = {}
     run.stop = "frames"
@@ -287,7 +293,9 @@ def markdown_table(runs, skipped, times, metrics, args) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     notes = (
         f"\n{args.task}, {args.minutes:g} min per run, seeds {' '.join(map(str, args.seeds))}, frame cap "
-        f"{args.frames or 'each peer its own'}, torch threads {args.torch_threads}. Evaluation: 10 episodes, mean "
+        f"{args.frames or 'each peer its own'}, torch threads {args.torch_threads}, {args.lanes} run(s) at a time"
+        + (f", ours with `{' '.join(args.ours_overrides)}`" if args.ours_overrides else "")
+        + ". Evaluation: 10 episodes, mean "
         "action, seed 12345, our task env; ± is the std over seeds (population); per-seed values in seed order. "
         f"Times to thresholds: first batch whose training return (sampled actions, episode-weighted mean over "
         f"the last {args.window_frames} frames) reaches it. Load: 1-minute load average at the run's start → end.\n"
@@ -308,6 +316,41 @@ def read_table(path: Path) -> list[dict[str, str]]:
     return rows
 
 
+def run_or_reuse(peer: str, seed: int, args: argparse.Namespace) -> Run:
+    """One (peer, seed) run, or the one a previous invocation finished: ``run.json`` in its directory.
+
+    The record is written only after evaluation, so an interrupted run starts again from scratch (a run's
+    budget is its wall clock, so it cannot continue). A finished run is reused only if it was made with the
+    same budget, frame cap, threads and overrides (``settings`` in ``run.json``); otherwise it is refused.
+    """
+    run_dir = args.out / "runs" / f"{peer}_seed{seed}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    record, settings = run_dir / "run.json", run_settings(peer, args)
+    if record.exists():
+        saved = json.loads(record.read_text())
+        if saved["settings"] != settings:
+            raise SystemExit(f"{record} was made with {saved['settings']}, not {settings}: use another --out")
+        run = Run(**{k: tuple(v) if k.startswith("load") else v for k, v in saved["run"].items()})
+        run.curve = [tuple(row) for row in run.curve]
+        print(f"{peer} seed {seed}: reused from {record}", flush=True)
+        return run
+    load_start = os.getloadavg()
+    run = run_ours(args.task, seed, args, run_dir) if peer == "ours" else run_peer(peer, args.task, seed, args, run_dir)
+    run.load_start, run.load_end = load_start, os.getloadavg()
+    if run.status == "ok":
+        record.write_text(json.dumps({"settings": settings, "run": asdict(run)}))
+    print(f"{peer} seed {seed}: {run.status}, return {evaluated(run, 'return'):.1f}, "
+          f"{run.trained_frames} frames, {run.wall_s:.0f} s, load {load_start[0]:.2f} → {run.load_end[0]:.2f}",
+          flush=True)  # fmt: skip
+    return run
+
+
+def run_settings(peer: str, args: argparse.Namespace) -> dict[str, Any]:
+    """What a finished run's result depends on besides its peer and seed (checked before it is reused)."""
+    settings = {"task": args.task, "minutes": args.minutes, "frames": args.frames, "torch_threads": args.torch_threads}
+    return settings | ({"ours_overrides": list(args.ours_overrides)} if peer == "ours" else {})
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", required=True, choices=sorted(TASKS))
@@ -319,29 +362,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--thresholds", type=float, nargs="+", default=None, help="returns to time (task default)")
     parser.add_argument("--window-frames", type=int, default=20480, help="smoothing window of training returns")
     parser.add_argument("--torch-threads", type=int, default=1)
+    parser.add_argument("--ours-overrides", nargs="*", default=[], help="Hydra overrides appended to ours' command")
+    parser.add_argument("--lanes", type=int, default=1, help="runs at a time (default 1; the docstring says when 2)")
     args = parser.parse_args(argv)
     args.peers = args.peers or TASKS[args.task]["peers"]
     unknown = [p for p in args.peers if p not in TASKS[args.task]["peers"]]
-    if unknown or args.minutes <= 0:
-        parser.error(f"peers for {args.task}: {TASKS[args.task]['peers']}" if unknown else "--minutes must be positive")
+    if unknown or args.minutes <= 0 or args.lanes < 1:
+        parser.error(
+            f"peers for {args.task}: {TASKS[args.task]['peers']}"
+            if unknown
+            else "--minutes and --lanes must be positive"
+        )
     args.thresholds = args.thresholds or TASKS[args.task]["thresholds"]
     skipped = {p: f"{', '.join(m)} not installed" for p in args.peers if (m := missing_modules(p))}
     args.out.mkdir(parents=True, exist_ok=True)
-    runs: list[Run] = []
-    for peer in [p for p in args.peers if p not in skipped]:
-        for seed in args.seeds:
-            run_dir = args.out / "runs" / f"{peer}_seed{seed}"
-            run_dir.mkdir(parents=True, exist_ok=True)
-            load_start = os.getloadavg()
-            if peer == "ours":
-                run = run_ours(args.task, seed, args, run_dir)
-            else:
-                run = run_peer(peer, args.task, seed, args, run_dir)
-            run.load_start, run.load_end = load_start, os.getloadavg()
-            runs.append(run)
-            print(f"{peer} seed {seed}: {run.status}, return {evaluated(run, 'return'):.1f}, "
-                  f"{run.trained_frames} frames, {run.wall_s:.0f} s, load {load_start[0]:.2f} → {run.load_end[0]:.2f}",
-                  flush=True)  # fmt: skip
+    # seed-major order: with --lanes 2, each seed's runs of two peers start together and share the machine's load
+    jobs = [(peer, seed) for seed in args.seeds for peer in args.peers if peer not in skipped]
+    with ThreadPoolExecutor(max_workers=args.lanes) as pool:  # each run is its own process; threads only wait
+        runs = list(pool.map(lambda job: run_or_reuse(*job, args), jobs))
     for peer, reason in skipped.items():
         print(f"{peer}: skipped ({reason})")
     print(write_outputs(runs, skipped, args))
