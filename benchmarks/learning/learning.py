@@ -66,6 +66,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from record_learning_run import read_scalar
 
 HERE = Path(__file__).resolve().parent
@@ -300,7 +301,44 @@ def markdown_table(runs, skipped, times, metrics, args) -> str:
         f"Times to thresholds: first batch whose training return (sampled actions, episode-weighted mean over "
         f"the last {args.window_frames} frames) reaches it. Load: 1-minute load average at the run's start → end.\n"
     )
-    return "\n".join(lines) + "\n" + notes
+    return "\n".join(lines) + "\n" + notes + contrasts(runs, metrics, args)
+
+
+def contrasts(runs: list[Run], metrics: list[str], args: argparse.Namespace) -> str:
+    """Ours against each other peer: means over seeds with 95 % bootstrap intervals, rliable's probability of
+    improvement (``reporting.intervals``), and the ratio of frames per second (frames trained / wall)."""
+    from torchrl_ahrs.reporting.intervals import improvement_probability, mean_interval
+
+    def per_seed(peer: str, key: str) -> np.ndarray:
+        return np.array([evaluated(r, key) for r in runs if r.peer == peer and r.evaluation is not None])
+
+    def rate(peer: str) -> float:
+        mine = [r for r in runs if r.peer == peer and r.evaluation is not None and r.wall_s > 0]
+        return statistics.fmean(r.trained_frames / r.wall_s for r in mine) if mine else math.nan
+
+    def show(point_low_high: tuple[float, float, float]) -> str:
+        return "{:.3g} [{:.3g}, {:.3g}]".format(*point_low_high)
+
+    if "ours" not in args.peers:
+        return ""
+    lines = []
+    for peer in [p for p in args.peers if p != "ours" and any(r.peer == p for r in runs)]:
+        parts = [f"\nours against {peer} (mean [95 % interval] over seeds; P = rliable's probability of improvement):"]
+        for key, higher_is_better in [("return", True), *[(m, False) for m in metrics]]:
+            ours, theirs = per_seed("ours", key), per_seed(peer, key)
+            sign = 1.0 if higher_is_better else -1.0  # P(ours better): on negated values when lower is better
+            p = improvement_probability(sign * ours, sign * theirs)
+            better = "above" if higher_is_better else "below"
+            parts.append(
+                f"- {key}: ours {show(mean_interval(ours))}, {peer} {show(mean_interval(theirs))}; "
+                f"P(ours {better} {peer}) = {show(p)}"
+            )
+        ours_rate, peer_rate = (f"{rate(p):,.0f}".replace(",", " ") for p in ("ours", peer))
+        parts.append(
+            f"- frames per second: ours {ours_rate}, {peer} {peer_rate} (ratio {rate('ours') / rate(peer):.2f})"
+        )
+        lines += parts
+    return "\n".join(lines) + ("\n" if lines else "")
 
 
 def read_table(path: Path) -> list[dict[str, str]]:

@@ -41,6 +41,22 @@ def test_time_to_threshold_is_the_first_row_reaching_it(learning):
     assert learning.time_to(curve, [5.0, 12.0, 8.0], 12.5) is None
 
 
+def test_contrasts_give_means_with_intervals_the_probability_of_improvement_and_the_frame_rate_ratio(learning):
+    def run(peer, seed, ret, error, frames):
+        evaluation = {"return": {"total": {"mean": ret, "std": 0.0}}, "metrics": {"lin_vel_error": {"mean": error}}}
+        return learning.Run(peer, seed, evaluation=evaluation, trained_frames=frames, wall_s=100.0)
+
+    # ours scores above rsl_rl on every seed and has the lower error on every seed: P = 1 with interval [1, 1]
+    runs = [run("ours", s, 20.0 + s, 0.2, 200_000) for s in (1, 2, 3)]
+    runs += [run("rsl_rl", s, 5.0 + s, 0.9, 100_000) for s in (1, 2, 3)]
+    args = learning.argparse.Namespace(peers=["ours", "rsl_rl"])
+    text = learning.contrasts(runs, ["lin_vel_error"], args)
+    assert "- return: ours 22 [21, 23], rsl_rl 7 [6, 8]; P(ours above rsl_rl) = 1 [1, 1]" in text, text
+    assert "- lin_vel_error: ours 0.2 [0.2, 0.2], rsl_rl 0.9 [0.9, 0.9]; P(ours below rsl_rl) = 1 [1, 1]" in text
+    assert "ours 2 000, rsl_rl 1 000 (ratio 2.00)" in text  # 200 000 / 100 s against 100 000 / 100 s
+    assert learning.contrasts(runs[3:], ["lin_vel_error"], learning.argparse.Namespace(peers=["rsl_rl"])) == ""
+
+
 def test_read_table_refuses_a_row_of_the_wrong_width(learning, tmp_path):
     path = tmp_path / "table.md"
     path.write_text("| peer | seeds |\n|---|---|\n| ours | 1 of 1 |\n")
