@@ -19,8 +19,9 @@ Peers (``pip install -e ".[bench]"``; a peer whose package is absent is skipped,
   Cassie PPO on our ``CassieEnv`` (``rsl_rl_adapter.py``). Sources and numbers: ``learning_peers.py``.
 
 Protocol. Runs go one at a time by default, each ``(peer, seed)`` in its own process. ``--lanes 2`` runs two
-at once, seed by seed, so each of ours runs beside a peer's run of the same seed and both see the same load;
-every figure then holds only for that shared load (on 2 cores each run has about one core, which is what a
+at once in seed order (ours and the peer of the first seed start together; each next run starts when a lane
+frees), so every run has one other run beside it for nearly all of its time and all see about the same load.
+Every figure then holds only for that shared load (on 2 cores each run has about one core, which is what a
 lone run at ``--torch-threads 1`` uses anyway). A finished run is recorded in ``runs/<peer>_seed<s>/run.json``
 and a re-invocation with the same arguments reuses it, so a cut-off comparison continues with the runs it lacks.
 The budget counts from the process launch (interpreter start-up and construction included, for every
@@ -414,7 +415,7 @@ def main(argv: list[str] | None = None) -> None:
     args.thresholds = args.thresholds or TASKS[args.task]["thresholds"]
     skipped = {p: f"{', '.join(m)} not installed" for p in args.peers if (m := missing_modules(p))}
     args.out.mkdir(parents=True, exist_ok=True)
-    # seed-major order: with --lanes 2, each seed's runs of two peers start together and share the machine's load
+    # seed-major order: with --lanes 2 the first seed's ours and peer start together; later runs fill freed lanes
     jobs = [(peer, seed) for seed in args.seeds for peer in args.peers if peer not in skipped]
     with ThreadPoolExecutor(max_workers=args.lanes) as pool:  # each run is its own process; threads only wait
         runs = list(pool.map(lambda job: run_or_reuse(*job, args), jobs))
