@@ -305,10 +305,15 @@ def markdown_table(runs, skipped, times, metrics, args) -> str:
     return "\n".join(lines) + "\n" + notes + contrasts(runs, metrics, args)
 
 
-def contrasts(runs: list[Run], metrics: list[str], args: argparse.Namespace) -> str:
+def contrasts(runs: list[Run], metrics: list[str], args: argparse.Namespace, reps: int | None = None) -> str:
     """Ours against each other peer: means over seeds with 95 % bootstrap intervals, rliable's probability of
-    improvement (``reporting.intervals``), and the ratio of frames per second (frames trained / wall)."""
-    from torchrl_ahrs.reporting.intervals import improvement_probability, mean_interval
+    improvement (``reporting.intervals``, ``reps`` resamples: its default when None), and the ratio of frames
+    per second (frames trained / wall)."""
+    from torchrl_ahrs.reporting.intervals import REPS, improvement_probability, mean_interval
+
+    if "ours" not in args.peers:
+        return ""
+    reps = reps or REPS
 
     def per_seed(peer: str, key: str) -> np.ndarray:
         return np.array([evaluated(r, key) for r in runs if r.peer == peer and r.evaluation is not None])
@@ -320,18 +325,16 @@ def contrasts(runs: list[Run], metrics: list[str], args: argparse.Namespace) -> 
     def show(point_low_high: tuple[float, float, float]) -> str:
         return "{:.3g} [{:.3g}, {:.3g}]".format(*point_low_high)
 
-    if "ours" not in args.peers:
-        return ""
     lines = []
     for peer in [p for p in args.peers if p != "ours" and any(r.peer == p for r in runs)]:
         parts = [f"\nours against {peer} (mean [95 % interval] over seeds; P = rliable's probability of improvement):"]
         for key, higher_is_better in [("return", True), *[(m, False) for m in metrics]]:
             ours, theirs = per_seed("ours", key), per_seed(peer, key)
             sign = 1.0 if higher_is_better else -1.0  # P(ours better): on negated values when lower is better
-            p = improvement_probability(sign * ours, sign * theirs)
+            p = improvement_probability(sign * ours, sign * theirs, reps)
             better = "above" if higher_is_better else "below"
             parts.append(
-                f"- {key}: ours {show(mean_interval(ours))}, {peer} {show(mean_interval(theirs))}; "
+                f"- {key}: ours {show(mean_interval(ours, reps))}, {peer} {show(mean_interval(theirs, reps))}; "
                 f"P(ours {better} {peer}) = {show(p)}"
             )
         ours_rate, peer_rate = (f"{rate(p):,.0f}".replace(",", " ") for p in ("ours", peer))

@@ -50,7 +50,7 @@ def test_contrasts_give_means_with_intervals_the_probability_of_improvement_and_
     runs = [run("ours", s, 20.0 + s, 0.2, 200_000) for s in (1, 2, 3)]
     runs += [run("rsl_rl", s, 5.0 + s, 0.9, 100_000) for s in (1, 2, 3)]
     args = learning.argparse.Namespace(peers=["ours", "rsl_rl"])
-    text = learning.contrasts(runs, ["lin_vel_error"], args)
+    text = learning.contrasts(runs, ["lin_vel_error"], args, reps=500)  # 500 resamples (seeded): 4 s, not 13
     assert "- return: ours 22 [21, 23], rsl_rl 7 [6, 8]; P(ours above rsl_rl) = 1 [1, 1]" in text, text
     assert "- lin_vel_error: ours 0.2 [0.2, 0.2], rsl_rl 0.9 [0.9, 0.9]; P(ours below rsl_rl) = 1 [1, 1]" in text
     assert "ours 2 000, rsl_rl 1 000 (ratio 2.00)" in text  # 200 000 / 100 s against 100 000 / 100 s
