@@ -58,6 +58,16 @@ def test_one_short_line_per_iteration_and_a_table_at_each_decision():
     assert abs(sum(shares) - 100.0) < 0.5 and [row.split()[0] for row in rows] == NAMES
 
 
+def test_the_eta_is_zero_once_the_last_batch_overshoots_the_budget():
+    # 2.5M frames in batches of 1 536 end at 2 500 608: the line said "ETA -1:59:59"
+    now, out = [0.0], io.StringIO()
+    console = ConsoleProgress(30, NAMES, Gae(), table_interval=0, stream=out, clock=lambda: now[0])
+    for _ in range(2):
+        now[0] += 10.0
+        console(batch(1.0))  # 20 frames in 10 s each: 40 of a budget of 30, 5 s past it at 2 frames/s
+    assert out.getvalue().splitlines()[-1].split(" | ")[:3] == ["40/30 frames", "2 frames/s", "ETA 0:00"]
+
+
 def test_effective_share_is_weight_times_spread():
     spread = torch.tensor([1.0, 2.0, 0.0])  # std over the batch of each component's advantage
     advantages = torch.stack([spread, -spread]) / 2**0.5  # [2, K] with std(A_k) = spread_k

@@ -281,7 +281,8 @@ class ConsoleProgress(TrainerHookBase):
         """One line of at most 80 characters: frames, frames/s, ETA, total return, the rule in force."""
         elapsed = max(self.clock() - self.started, 1e-9)
         rate = (self.frames - self.start_frames) / elapsed  # end to end: collection + update
-        eta = (self.total_frames - self.frames) / rate if rate > 0 else float("inf")
+        # the last batch overshoots a budget that is not a multiple of it: nothing is left, not a negative time
+        eta = max(self.total_frames - self.frames, 0) / rate if rate > 0 else float("inf")
         parts = [
             f"{_si(self.frames)}/{_si(self.total_frames)} frames",
             f"{_si(rate)} frames/s",
