@@ -1,5 +1,6 @@
 """The benchmark scripts still run end to end (tiny arguments, no timing assertions)."""
 
+import json
 import runpy
 import sys
 from pathlib import Path
@@ -195,3 +196,45 @@ def test_curve_bins_bins_each_batch_where_its_frames_start_and_counts_episodes_o
     (scalars / "episodes.csv").write_text("step,value\n200,1.0\n1000,3.0\n")
     out = run_script("learning/curve_bins.py", [str(tmp_path / "run"), "--bin", "1000"], monkeypatch, capsys)
     assert out.strip() == "run: 0-0.001M:  4.00 eps/batch  1.3 | 0.001-0.002M:  8.00 eps/batch  0.0"
+
+
+def write_evaluated_run(run_dir: Path, seed: int, error: float, lengths: list[int]) -> None:
+    """A run directory as training and `torchrl_ahrs.evaluate` leave it: config.yaml and evaluation.json."""
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.yaml").write_text(f"seed: {seed}\ntrainer:\n  total_frames: 100\n")
+    stats = {"mean": 2.0, "std": 0.0, "min": 2.0, "max": 2.0}
+    evaluation = {
+        "metrics": {"lin_vel_error": {**stats, "mean": error}},
+        "return": {"tracking_lin_vel": {**stats, "mean": 10.0 * seed}, "total": stats},
+        "per_episode": {"length": lengths, "return": [2.0] * len(lengths)},
+    }
+    (run_dir / "evaluation.json").write_text(json.dumps(evaluation))
+
+
+def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_improvement(
+    tmp_path, monkeypatch, capsys
+):
+    """Oracle: every error of arm a (0.1, 0.2) is below every error of arm b (0.3, 0.5), so with
+    --lower-is-better P(a better than b) = 1 whatever the bootstrap draws; the means are 0.15 and 0.4; b's seed 2
+    has a 700-step episode (a fall), so three runs meet the bar of 0.35: both of a's and b's seed 1."""
+    for arm, seed, error, lengths in [
+        ("a", 1, 0.1, [1000, 1000]), ("a", 2, 0.2, [1000, 1000]),
+        ("b", 1, 0.3, [1000, 1000]), ("b", 2, 0.5, [1000, 700]),
+    ]:  # fmt: skip
+        write_evaluated_run(tmp_path / f"{arm}_s{seed}", seed, error, lengths)
+    argv = ["--lower-is-better", "--bar", "0.35", "--terms", "tracking_lin_vel"]
+    argv += ["--arm", f"a={tmp_path}/a_s*", "--arm", f"b={tmp_path}/b_s*"]
+    out = run_script("learning/compare_evaluations.py", argv, monkeypatch, capsys)
+    rows = [line.split() for line in out.splitlines() if line.startswith(("a ", "b ")) and "mean" not in line]
+    assert rows == [
+        ["a", "1", "0.100", "2", "of", "2", "10.00"], ["a", "2", "0.200", "2", "of", "2", "20.00"],
+        ["b", "1", "0.300", "2", "of", "2", "10.00"], ["b", "2", "0.500", "1", "of", "2", "20.00"],
+    ]  # fmt: skip
+    assert "a            mean 0.150 [" in out and "over 2 seeds; 0 fall; 2 meet the bar" in out
+    assert "b            mean 0.400 [" in out and "over 2 seeds; 1 fall; 1 meet the bar" in out
+    assert "P(a better than b) = 1.00 [1.00, 1.00]" in out
+
+
+def test_compare_evaluations_refuses_an_arm_that_matches_nothing_in_one_line(tmp_path, monkeypatch, capsys):
+    with pytest.raises(SystemExit, match=r"arm 'a': .* matches no directory"):
+        run_script("learning/compare_evaluations.py", ["--arm", f"a={tmp_path}/none_*"], monkeypatch, capsys)

@@ -1,0 +1,123 @@
+"""Arms of evaluated runs side by side: per seed, per arm with intervals, and each pair's probability of improvement.
+
+    python benchmarks/learning/compare_evaluations.py --lower-is-better --bar 0.25 --full-length 1000 \\
+        --arm "ppo=benchmarks/results/issue26_probes/cassie_r1[236]_ppo_klactor_s*" \\
+        --arm "mcppo=benchmarks/results/issue26_probes/cassie_r1[036]_mcppo_klactor_s*"
+
+Each ``--arm name=pattern`` is a glob of run directories that hold ``evaluation.json`` (written by
+``python -m torchrl_ahrs.evaluate run=<dir>``) and ``config.yaml`` (the training seed); quote it, so that the
+script, not the shell, expands it and an arm that matches nothing is an error. Printed:
+
+- per run: the training seed, ``--metric`` (a key of the evaluation's ``metrics``, or ``return`` for the total
+  evaluated return), the episodes that lasted ``--full-length`` steps, and each ``--terms`` component's
+  evaluated return (what the policy collects of it per episode);
+- per arm: the metric's mean with its 95 % stratified-bootstrap interval, the runs with a short episode ("fall"),
+  and, with ``--bar``, the runs whose metric is on the right side of the bar with every episode at full length;
+- per pair of arms: P(a run of the first is better than one of the second) with its 95 % interval (rliable's
+  probability of improvement, :func:`torchrl_ahrs.reporting.intervals.improvement_probability`; with
+  ``--lower-is-better`` it is computed on the negated metric).
+
+The RESULTS.md Cassie rounds quote these numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import itertools
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from torchrl_ahrs.reporting.intervals import improvement_probability, mean_interval
+
+
+@dataclass
+class Evaluated:
+    """One evaluated run: where it is, its training seed, the metric, episode lengths, component returns."""
+
+    run_dir: Path
+    seed: int
+    metric: float
+    lengths: list[float]
+    returns: dict[str, float]  # component -> mean evaluated return per episode
+
+
+def read_run(run_dir: Path, metric: str) -> Evaluated:
+    """Reads ``evaluation.json`` and ``config.yaml`` of one run; a missing file or metric is a one-line error."""
+    evaluation_path, config_path = run_dir / "evaluation.json", run_dir / "config.yaml"
+    for path in (evaluation_path, config_path):
+        if not path.exists():
+            raise SystemExit(
+                f"error: {path} does not exist (evaluate the run first: python -m torchrl_ahrs.evaluate run={run_dir})"
+            )
+    evaluation = json.loads(evaluation_path.read_text())
+    seed = int(yaml.safe_load(config_path.read_text())["seed"])
+    returns = {name: float(stats["mean"]) for name, stats in evaluation["return"].items()}
+    if metric == "return":
+        value = returns["total"]
+    elif metric in evaluation.get("metrics", {}):
+        value = float(evaluation["metrics"][metric]["mean"])
+    else:
+        known = ["return", *sorted(evaluation.get("metrics", {}))]
+        raise SystemExit(f"error: {run_dir} has no metric {metric!r}; it has {', '.join(known)}")
+    return Evaluated(run_dir, seed, value, [float(n) for n in evaluation["per_episode"]["length"]], returns)
+
+
+def parse_arm(text: str) -> tuple[str, list[Path]]:
+    """``name=pattern`` -> the name and the run directories the glob matches, sorted by name."""
+    name, separator, pattern = text.partition("=")
+    if not separator or not name or not pattern:
+        raise SystemExit(f"error: --arm takes name=glob, got {text!r}")
+    runs = sorted(Path(match) for match in glob.glob(pattern) if Path(match).is_dir())
+    if not runs:
+        raise SystemExit(f"error: arm {name!r}: {pattern!r} matches no directory")
+    return name, runs
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--arm", action="append", required=True, help="name=glob of run directories (repeat)")
+    parser.add_argument("--metric", default="lin_vel_error", help="an evaluation metric, or 'return'")
+    parser.add_argument("--lower-is-better", action="store_true", help="the metric is an error")
+    parser.add_argument("--full-length", type=int, default=1000, help="steps of an episode that did not end early")
+    parser.add_argument("--bar", type=float, default=None, help="the metric's target (with every episode full)")
+    parser.add_argument("--terms", default="tracking_lin_vel,tracking_ang_vel", help="components to show, comma")
+    args = parser.parse_args(argv)
+    arms = dict(parse_arm(text) for text in args.arm)
+    evaluated = {name: [read_run(run, args.metric) for run in runs] for name, runs in arms.items()}
+    terms = [term for term in args.terms.split(",") if term]
+    sign = -1.0 if args.lower_is_better else 1.0
+
+    def meets(run: Evaluated) -> bool:  # the bar, on the metric's right side, with no episode cut short
+        full = all(length >= args.full_length for length in run.lengths)
+        return full and (run.metric <= args.bar if args.lower_is_better else run.metric >= args.bar)
+
+    print(f"{'arm':<12} {'seed':>4} {args.metric:>14} {'full episodes':>14}" + "".join(f" {t:>17}" for t in terms))
+    for name, runs in evaluated.items():
+        for run in sorted(runs, key=lambda r: r.seed):
+            full = sum(length >= args.full_length for length in run.lengths)
+            cells = "".join(f" {run.returns.get(t, float('nan')):17.2f}" for t in terms)
+            print(f"{name:<12} {run.seed:>4} {run.metric:>14.3f} {f'{full} of {len(run.lengths)}':>14}{cells}")
+    print()
+    for name, runs in evaluated.items():
+        point, low, high = mean_interval(np.array([run.metric for run in runs]))
+        falls = sum(any(length < args.full_length for length in run.lengths) for run in runs)
+        line = f"{name:<12} mean {point:.3f} [{low:.3f}, {high:.3f}] over {len(runs)} seeds; {falls} fall"
+        if args.bar is not None:
+            line += f"; {sum(meets(run) for run in runs)} meet the bar ({args.bar:g}, every episode full)"
+        print(line)
+    print()
+    for first, second in itertools.combinations(evaluated, 2):
+        x = sign * np.array([run.metric for run in evaluated[first]])
+        y = sign * np.array([run.metric for run in evaluated[second]])
+        point, low, high = improvement_probability(x, y)
+        print(f"P({first} better than {second}) = {point:.2f} [{low:.2f}, {high:.2f}]")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
