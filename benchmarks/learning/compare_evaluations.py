@@ -4,7 +4,7 @@
         --arm "ppo=benchmarks/results/issue26_probes/cassie_r1[236]_ppo_klactor_s*" \\
         --arm "mcppo=benchmarks/results/issue26_probes/cassie_r1[036]_mcppo_klactor_s*"
 
-Each ``--arm name=pattern`` is a glob of run directories that hold ``evaluation.json`` (written by
+Each ``--arm name=pattern[,pattern...]`` names globs of run directories that hold ``evaluation.json`` (written by
 ``python -m torchrl_ahrs.evaluate run=<dir>``) and ``config.yaml`` (the training seed); quote it, so that the
 script, not the shell, expands it and an arm that matches nothing is an error. Printed:
 
@@ -69,19 +69,23 @@ def read_run(run_dir: Path, metric: str) -> Evaluated:
 
 
 def parse_arm(text: str) -> tuple[str, list[Path]]:
-    """``name=pattern`` -> the name and the run directories the glob matches, sorted by name."""
-    name, separator, pattern = text.partition("=")
-    if not separator or not name or not pattern:
-        raise SystemExit(f"error: --arm takes name=glob, got {text!r}")
-    runs = sorted(Path(match) for match in glob.glob(pattern) if Path(match).is_dir())
-    if not runs:
-        raise SystemExit(f"error: arm {name!r}: {pattern!r} matches no directory")
-    return name, runs
+    """``name=pattern[,pattern...]`` -> the name and the run directories the globs match, sorted by name; a glob
+    that matches nothing is an error (a mistyped round would otherwise drop out silently)."""
+    name, separator, patterns = text.partition("=")
+    if not separator or not name or not patterns:
+        raise SystemExit(f"error: --arm takes name=glob[,glob...], got {text!r}")
+    runs: set[Path] = set()
+    for pattern in patterns.split(","):
+        matched = {Path(match) for match in glob.glob(pattern) if Path(match).is_dir()}
+        if not matched:
+            raise SystemExit(f"error: arm {name!r}: {pattern!r} matches no directory")
+        runs |= matched
+    return name, sorted(runs)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--arm", action="append", required=True, help="name=glob of run directories (repeat)")
+    parser.add_argument("--arm", action="append", required=True, help="name=glob[,glob...] of run dirs (repeat)")
     parser.add_argument("--metric", default="lin_vel_error", help="an evaluation metric, or 'return'")
     parser.add_argument("--lower-is-better", action="store_true", help="the metric is an error")
     parser.add_argument("--full-length", type=int, default=1000, help="steps of an episode that did not end early")

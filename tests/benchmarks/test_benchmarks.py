@@ -223,7 +223,7 @@ def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_i
     ]:  # fmt: skip
         write_evaluated_run(tmp_path / f"{arm}_s{seed}", seed, error, lengths)
     argv = ["--lower-is-better", "--bar", "0.35", "--terms", "tracking_lin_vel"]
-    argv += ["--arm", f"a={tmp_path}/a_s*", "--arm", f"b={tmp_path}/b_s*"]
+    argv += ["--arm", f"a={tmp_path}/a_s1,{tmp_path}/a_s2", "--arm", f"b={tmp_path}/b_s*"]  # two globs, one glob
     out = run_script("learning/compare_evaluations.py", argv, monkeypatch, capsys)
     rows = [line.split() for line in out.splitlines() if line.startswith(("a ", "b ")) and "mean" not in line]
     assert rows == [
@@ -237,4 +237,4 @@ def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_i
 
 def test_compare_evaluations_refuses_an_arm_that_matches_nothing_in_one_line(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit, match=r"arm 'a': .* matches no directory"):
-        run_script("learning/compare_evaluations.py", ["--arm", f"a={tmp_path}/none_*"], monkeypatch, capsys)
+        run_script("learning/compare_evaluations.py", ["--arm", f"a={tmp_path},{tmp_path}/none_*"], monkeypatch, capsys)
