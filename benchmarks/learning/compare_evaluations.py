@@ -15,7 +15,9 @@ script, not the shell, expands it and an arm that matches nothing is an error. P
   and, with ``--bar``, the runs whose metric is on the right side of the bar with every episode at full length;
 - per pair of arms: P(a run of the first is better than one of the second) with its 95 % interval (rliable's
   probability of improvement, :func:`torchrl_ahrs.reporting.intervals.improvement_probability`; with
-  ``--lower-is-better`` it is computed on the negated metric).
+  ``--lower-is-better`` it is computed on the negated metric);
+- the same for the training total in the run's last ``--bin`` frames (the native ``reward/total`` per 1 000 steps,
+  binned as ``curve_bins.py`` bins it: what the run was collecting by the end, not an evaluation), higher better.
 
 The RESULTS.md Cassie rounds quote these numbers.
 """
@@ -32,23 +34,27 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from curve_bins import batch_starts, bin_means, read_scalar
 
 from torchrl_ahrs.reporting.intervals import improvement_probability, mean_interval
 
 
 @dataclass
 class Evaluated:
-    """One evaluated run: where it is, its training seed, the metric, episode lengths, component returns."""
+    """One evaluated run: where it is, its training seed, the metric, episode lengths, component returns and the
+    training total of its last frames."""
 
     run_dir: Path
     seed: int
     metric: float
     lengths: list[float]
     returns: dict[str, float]  # component -> mean evaluated return per episode
+    final_total: float  # mean reward/total per 1 000 steps over the batches that start in the last bin
 
 
-def read_run(run_dir: Path, metric: str) -> Evaluated:
-    """Reads ``evaluation.json`` and ``config.yaml`` of one run; a missing file or metric is a one-line error."""
+def read_run(run_dir: Path, metric: str, width: int) -> Evaluated:
+    """Reads ``evaluation.json``, ``config.yaml`` and the ``reward/total`` scalars of one run (``width``: the
+    training total's bin); a missing file or metric is a one-line error."""
     evaluation_path, config_path = run_dir / "evaluation.json", run_dir / "config.yaml"
     for path in (evaluation_path, config_path):
         if not path.exists():
@@ -65,7 +71,10 @@ def read_run(run_dir: Path, metric: str) -> Evaluated:
     else:
         known = ["return", *sorted(evaluation.get("metrics", {}))]
         raise SystemExit(f"error: {run_dir} has no metric {metric!r}; it has {', '.join(known)}")
-    return Evaluated(run_dir, seed, value, [float(n) for n in evaluation["per_episode"]["length"]], returns)
+    bins = bin_means(batch_starts(read_scalar(run_dir, "reward/total")), width)  # {first frame: mean per step}
+    final_total = 1e3 * bins[max(bins)] if bins else float("nan")  # per 1 000 steps, as curve_bins prints it
+    lengths = [float(n) for n in evaluation["per_episode"]["length"]]
+    return Evaluated(run_dir, seed, value, lengths, returns, final_total)
 
 
 def parse_arm(text: str) -> tuple[str, list[Path]]:
@@ -91,9 +100,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--full-length", type=int, default=1000, help="steps of an episode that did not end early")
     parser.add_argument("--bar", type=float, default=None, help="the metric's target (with every episode full)")
     parser.add_argument("--terms", default="tracking_lin_vel,tracking_ang_vel", help="components to show, comma")
+    parser.add_argument("--bin", type=int, default=500_000, help="frames of the last bin of the training total")
     args = parser.parse_args(argv)
     arms = dict(parse_arm(text) for text in args.arm)
-    evaluated = {name: [read_run(run, args.metric) for run in runs] for name, runs in arms.items()}
+    evaluated = {name: [read_run(run, args.metric, args.bin) for run in runs] for name, runs in arms.items()}
     terms = [term for term in args.terms.split(",") if term]
     sign = -1.0 if args.lower_is_better else 1.0
 
@@ -101,12 +111,14 @@ def main(argv: list[str] | None = None) -> None:
         full = all(length >= args.full_length for length in run.lengths)
         return full and (run.metric <= args.bar if args.lower_is_better else run.metric >= args.bar)
 
-    print(f"{'arm':<12} {'seed':>4} {args.metric:>14} {'full episodes':>14}" + "".join(f" {t:>17}" for t in terms))
+    header = f"{'arm':<12} {'seed':>4} {args.metric:>14} {'full episodes':>14} {'training total':>14}"
+    print(header + "".join(f" {t:>17}" for t in terms))
     for name, runs in evaluated.items():
         for run in sorted(runs, key=lambda r: r.seed):
             full = sum(length >= args.full_length for length in run.lengths)
             cells = "".join(f" {run.returns.get(t, float('nan')):17.2f}" for t in terms)
-            print(f"{name:<12} {run.seed:>4} {run.metric:>14.3f} {f'{full} of {len(run.lengths)}':>14}{cells}")
+            episodes = f"{full} of {len(run.lengths)}"
+            print(f"{name:<12} {run.seed:>4} {run.metric:>14.3f} {episodes:>14} {run.final_total:14.2f}{cells}")
     print()
     for name, runs in evaluated.items():
         point, low, high = mean_interval(np.array([run.metric for run in runs]))
@@ -115,12 +127,20 @@ def main(argv: list[str] | None = None) -> None:
         if args.bar is not None:
             line += f"; {sum(meets(run) for run in runs)} meet the bar ({args.bar:g}, every episode full)"
         print(line)
+        point, low, high = mean_interval(np.array([run.final_total for run in runs]))
+        print(f"{'':<12} training total, last bin: {point:.2f} [{low:.2f}, {high:.2f}]")
     print()
     for first, second in itertools.combinations(evaluated, 2):
         x = sign * np.array([run.metric for run in evaluated[first]])
         y = sign * np.array([run.metric for run in evaluated[second]])
         point, low, high = improvement_probability(x, y)
-        print(f"P({first} better than {second}) = {point:.2f} [{low:.2f}, {high:.2f}]")
+        x_total = np.array([run.final_total for run in evaluated[first]])
+        y_total = np.array([run.final_total for run in evaluated[second]])
+        total, total_low, total_high = improvement_probability(x_total, y_total)
+        print(
+            f"P({first} better than {second}) = {point:.2f} [{low:.2f}, {high:.2f}] in {args.metric}, "
+            f"{total:.2f} [{total_low:.2f}, {total_high:.2f}] in the training total"
+        )
 
 
 if __name__ == "__main__":

@@ -198,9 +198,11 @@ def test_curve_bins_bins_each_batch_where_its_frames_start_and_counts_episodes_o
     assert out.strip() == "run: 0-0.001M:  4.00 eps/batch  1.3 | 0.001-0.002M:  8.00 eps/batch  0.0"
 
 
-def write_evaluated_run(run_dir: Path, seed: int, error: float, lengths: list[int]) -> None:
-    """A run directory as training and `torchrl_ahrs.evaluate` leave it: config.yaml and evaluation.json."""
-    run_dir.mkdir(parents=True)
+def write_evaluated_run(run_dir: Path, seed: int, error: float, lengths: list[int], total: float = 0.0) -> None:
+    """A run directory as training and `torchrl_ahrs.evaluate` leave it: config.yaml, evaluation.json and the
+    reward/total scalars (two batches of 1 000 frames: `total` per step in the second, 0 in the first)."""
+    (run_dir / "metrics" / "scalars" / "reward").mkdir(parents=True)
+    (run_dir / "metrics" / "scalars" / "reward" / "total.csv").write_text(f"step,value\n1000,0.0\n2000,{total}\n")
     (run_dir / "config.yaml").write_text(f"seed: {seed}\ntrainer:\n  total_frames: 100\n")
     stats = {"mean": 2.0, "std": 0.0, "min": 2.0, "max": 2.0}
     evaluation = {
@@ -216,23 +218,26 @@ def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_i
 ):
     """Oracle: every error of arm a (0.1, 0.2) is below every error of arm b (0.3, 0.5), so with
     --lower-is-better P(a better than b) = 1 whatever the bootstrap draws; the means are 0.15 and 0.4; b's seed 2
-    has a 700-step episode (a fall), so three runs meet the bar of 0.35: both of a's and b's seed 1."""
-    for arm, seed, error, lengths in [
-        ("a", 1, 0.1, [1000, 1000]), ("a", 2, 0.2, [1000, 1000]),
-        ("b", 1, 0.3, [1000, 1000]), ("b", 2, 0.5, [1000, 700]),
+    has a 700-step episode (a fall), so three runs meet the bar of 0.35: both of a's and b's seed 1. The training
+    total of the last 1 000-frame bin is the second batch's reward per step x 1 000, and every run of b collects
+    more than every run of a there: P(a better) = 0 in it."""
+    for arm, seed, error, lengths, total in [
+        ("a", 1, 0.1, [1000, 1000], 0.001), ("a", 2, 0.2, [1000, 1000], 0.002),
+        ("b", 1, 0.3, [1000, 1000], 0.003), ("b", 2, 0.5, [1000, 700], 0.004),
     ]:  # fmt: skip
-        write_evaluated_run(tmp_path / f"{arm}_s{seed}", seed, error, lengths)
-    argv = ["--lower-is-better", "--bar", "0.35", "--terms", "tracking_lin_vel"]
+        write_evaluated_run(tmp_path / f"{arm}_s{seed}", seed, error, lengths, total)
+    argv = ["--lower-is-better", "--bar", "0.35", "--terms", "tracking_lin_vel", "--bin", "1000"]
     argv += ["--arm", f"a={tmp_path}/a_s1,{tmp_path}/a_s2", "--arm", f"b={tmp_path}/b_s*"]  # two globs, one glob
     out = run_script("learning/compare_evaluations.py", argv, monkeypatch, capsys)
     rows = [line.split() for line in out.splitlines() if line.startswith(("a ", "b ")) and "mean" not in line]
     assert rows == [
-        ["a", "1", "0.100", "2", "of", "2", "10.00"], ["a", "2", "0.200", "2", "of", "2", "20.00"],
-        ["b", "1", "0.300", "2", "of", "2", "10.00"], ["b", "2", "0.500", "1", "of", "2", "20.00"],
+        ["a", "1", "0.100", "2", "of", "2", "1.00", "10.00"], ["a", "2", "0.200", "2", "of", "2", "2.00", "20.00"],
+        ["b", "1", "0.300", "2", "of", "2", "3.00", "10.00"], ["b", "2", "0.500", "1", "of", "2", "4.00", "20.00"],
     ]  # fmt: skip
     assert "a            mean 0.150 [" in out and "over 2 seeds; 0 fall; 2 meet the bar" in out
     assert "b            mean 0.400 [" in out and "over 2 seeds; 1 fall; 1 meet the bar" in out
-    assert "P(a better than b) = 1.00 [1.00, 1.00]" in out
+    assert "training total, last bin: 1.50 [" in out and "training total, last bin: 3.50 [" in out
+    assert "P(a better than b) = 1.00 [1.00, 1.00] in lin_vel_error, 0.00 [0.00, 0.00] in the training total" in out
 
 
 def test_compare_evaluations_refuses_an_arm_that_matches_nothing_in_one_line(tmp_path, monkeypatch, capsys):
