@@ -203,3 +203,19 @@ def test_sigkill_then_resume_continues_exactly(tmp_path):
     whole = RunDirectory(tmp_path / "whole")
     train(make_cfg(*KILL_ARGS), whole.path)
     assert_same_run(whole, run)
+
+
+@pytest.mark.slow
+def test_the_anchored_mix_resumes_exactly_and_logs_the_anchors_share(tmp_path, monkeypatch):
+    # the anchor's network, its value-norm column and its share are checkpointed state like the K heads'
+    overrides = [*TINY, "method=ahrs_wo_a", "ppo.mix=anchored"]
+    whole, cut = RunDirectory(tmp_path / "whole"), RunDirectory(tmp_path / "cut")
+    train(make_cfg(*overrides), whole.path)
+    train_until(make_cfg(*overrides), cut.path, 2, monkeypatch)
+    train(make_cfg(*overrides, f"resume={cut.path}"), cut.path)
+    assert_same_run(whole, cut)
+    shares = {path.stem: read_scalar(path)[1] for path in (whole.scalars / "share").glob("*.csv")}
+    assert "anchor" in shares and len(shares) == 4  # point_reach's three components and the anchor
+    assert shares["anchor"][0] == 1.0  # the first update's weights are equal: the anchor alone
+    total = sum(values for values in shares.values())
+    assert all(abs(value - 1.0) < 1e-5 for value in total)  # every iteration's shares add up to one

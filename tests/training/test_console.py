@@ -168,3 +168,38 @@ def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys
     done = [r.getMessage() for r in caplog.records if r.getMessage().startswith("done: ")]
     assert len(done) == 1 and done[0].startswith("done: 3072 frames in ") and f"run directory {tmp_path}" in done[0]
     assert "final return -" in done[0]  # point_reach's return is a negative distance
+
+
+def test_an_anchored_run_prints_the_anchors_row_whose_share_completes_the_components(tmp_path, capsys):
+    """``ppo.mix=anchored``: below the components, an ``anchor`` row with the mean weight and the logged
+    share/anchor; the shares of a table add up to 100 % only with it."""
+    from conftest import make_cfg
+
+    from torchrl_ahrs.app.train.runs import read_scalar
+    from torchrl_ahrs.train import train
+
+    cfg = make_cfg(
+        "task=point_reach",
+        "method=ahrs_wo_a",
+        "ppo.mix=anchored",
+        "trainer.total_frames=2048",
+        "trainer.num_envs=16",
+        "trainer.frames_per_batch=1024",
+        "trainer.mini_batch_size=512",
+        "trainer.num_epochs=1",
+        "trainer.table_interval=1",
+        "scheduler.interval=1",
+        "model.hidden_sizes=[16]",
+        "logger.backends=[csv]",
+    )
+    train(cfg, tmp_path)
+    lines = capsys.readouterr().err.splitlines()
+    starts = [i for i, line in enumerate(lines) if line.startswith("it ")]
+    anchor_shares = read_scalar(tmp_path / "metrics" / "scalars" / "share" / "anchor.csv")[1]
+    assert len(starts) == 2 == len(anchor_shares)
+    for start, logged in zip(starts, anchor_shares, strict=True):
+        rows = [line.split() for line in lines[start + 2 : start + 6]]  # three components, then the anchor
+        assert [row[0] for row in rows] == ["distance", "arrival", "ctrl", "anchor"]
+        assert float(rows[3][2]) == pytest.approx(sum(float(row[2]) for row in rows[:3]) / 3, abs=2e-3)  # w̄
+        assert float(rows[3][3].rstrip("%")) == pytest.approx(100 * logged, abs=0.05)
+        assert sum(float(row[3].rstrip("%")) for row in rows) == pytest.approx(100.0, abs=0.3)

@@ -146,6 +146,11 @@ def test_with_kl_adapts_actor_the_kl_rule_sets_the_actors_rate_and_the_critic_ke
         train(make_cfg(*TINY, "ppo.kl_adapts=critic"), tmp_path / "refused")
 
 
+def test_an_unknown_mix_is_refused_in_one_line(tmp_path):
+    with pytest.raises(ConfigError, match="ppo.mix must be one of sum, anchored, got 'mean'"):
+        train(make_cfg(*TINY, "ppo.mix=mean"), tmp_path / "refused")
+
+
 def test_a_kl_target_with_every_optimiser_group_flagged_is_refused_in_one_line(tmp_path, monkeypatch):
     # a hand-built optimiser in which no group follows the KL rule would leave the target without effect
     from torchrl_ahrs.app.train import iteration

@@ -87,7 +87,7 @@ def test_weights_are_replaceable_and_validated():
 
 def test_critic_with_wrong_number_of_heads_fails_loudly():
     estimator = WeightedMultiGAE(NAMES, gamma=0.99, lmbda=0.95, value_network=make_critic(heads=1))
-    with pytest.raises(ValueError, match="K heads"):
+    with pytest.raises(ValueError, match="5 GAE columns .* build the critic with one head per column"):
         estimator(make_batch())
 
 
@@ -137,3 +137,29 @@ def test_reward_key_names_the_input_tree_and_the_total_is_left_alone():
 
 def test_forward_has_its_own_docstring():
     assert "Σ_k w_k A_k" in WeightedMultiGAE.forward.__doc__
+
+
+def test_the_anchor_head_is_a_network_of_its_own_that_starts_as_ppos_critic():
+    torch.manual_seed(3)
+    ppo_critic = MultiHeadCritic(OBS, 1, [16, 16])
+    torch.manual_seed(3)
+    anchored = MultiHeadCritic(OBS, K, [16, 16], anchor_head=True)
+    assert anchored.anchor is not None
+    pairs = zip(ppo_critic.net.state_dict().values(), anchored.anchor.state_dict().values(), strict=True)
+    for ppo_tensor, anchor_tensor in pairs:
+        assert torch.equal(ppo_tensor, anchor_tensor)  # the same draws: an anchored method begins where PPO does
+    observation = torch.randn(7, OBS)
+    values = anchored(observation)
+    assert values.shape == (7, K + 1)
+    torch.testing.assert_close(values[:, -1:], ppo_critic(observation))
+    values[:, -1].sum().backward()  # the anchor's value reads none of the K heads' parameters
+    assert all(param.grad is None or not param.grad.any() for param in anchored.net.parameters())
+
+
+def test_the_anchored_mix_refuses_a_component_named_like_its_column_and_a_critic_without_the_anchor():
+    critic = TensorDictModule(torch.nn.Linear(OBS, K), in_keys=["observation"], out_keys=["state_value"])
+    with pytest.raises(ValueError, match="names its extra column 'anchor'"):
+        WeightedMultiGAE(["anchor", "b"], gamma=0.9, lmbda=0.9, value_network=critic, anchored=True)
+    gae = WeightedMultiGAE(NAMES, gamma=0.9, lmbda=0.9, value_network=critic, anchored=True)  # K values, not K + 1
+    with pytest.raises(ValueError, match=r"returned 5 value\(s\) per state but there are 6 GAE columns.*anchor_head"):
+        gae(make_batch())

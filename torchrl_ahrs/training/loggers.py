@@ -42,6 +42,7 @@ from torchrl.trainers import TrainerHookBase
 
 from torchrl_ahrs.rewards.components import TOTAL, finished_episode_returns
 from torchrl_ahrs.value.functional import effective_shares
+from torchrl_ahrs.value.gae import ANCHOR
 
 log = logging.getLogger(__name__)
 
@@ -318,7 +319,8 @@ class ConsoleProgress(TrainerHookBase):
                     [batch.get(("next", "reward", c)).float().reshape(-1, 1) for c in names], dim=-1
                 ).cpu()  # [N, K], beside the CPU weights
                 recorded = effective_shares(rewards, weights)
-            shares = recorded.detach().float().cpu()
+            # [K]: an anchored estimator's last share is its anchor's, shown only with the metrics (the row below)
+            shares = recorded.detach().float().cpu()[: len(names)]
         changed = not torch.allclose(weights, current)  # a decision after this update: its weights come next
         returns = self.last_component_returns or [float("nan")] * len(names)
         width = max(9, *(len(c) for c in names))
@@ -331,6 +333,10 @@ class ConsoleProgress(TrainerHookBase):
         for name, ret, weight, share, upcoming in columns:
             row = f"  {name:<{width}} {ret:>9.4g} {weight:>8.3f} {share:>7.1%}"
             rows.append(row + (f" {upcoming:>8.3f}" if changed else ""))
+        anchor_share = (metrics or {}).get(f"share/{ANCHOR}")
+        if anchor_share is not None:  # the anchored mix: the summed reward's advantage at the mean weight w̄
+            total = float("nan") if self.last_return is None else self.last_return
+            rows.append(f"  {ANCHOR:<{width}} {total:>9.4g} {weights.mean().item():>8.3f} {anchor_share:>7.1%}")
         return "\n".join(rows)
 
     def __call__(self, batch: TensorDictBase, metrics: Mapping[str, float] | None = None) -> dict[str, float]:

@@ -92,8 +92,10 @@ def learn(run: TrainingRun) -> dict[str, float]:
                         # advantages with the current critic: A_k, value_target [N, T, K], advantage = Σ_k w_k A_k
                         estimator(batch)
                         selected = batch.select(*keys, strict=False)  # shares the tensors; the sets stay out of batch
-                        if epoch == 0:  # the collecting critic's Σ_k V_k against the total it stands for
+                        if epoch == 0:  # the collecting critic's Σ_k V_k (anchored: V_Σ) against the total
                             targets, values = batch.get("value_target"), batch.get("state_value")
+                            if getattr(estimator, "anchored", False):  # the anchor's column is the total's
+                                targets, values = targets[..., -1:], values[..., -1:]
                             metrics["train/explained_variance_total"] = total_explained_variance(targets, values)
                         if run.value_norm is not None:  # the loss regresses standardised targets; GAE read reward units
                             targets = selected.get("value_target")
@@ -133,8 +135,9 @@ def learn(run: TrainingRun) -> dict[str, float]:
             # train/<term>: the last epoch's mean (as TorchRL's Trainer, which ran this loop before, averaged; so
             # earlier runs' numbers compare), computed once instead of a TensorDict running mean per minibatch
             metrics.update(epoch_means(last_epoch_losses))
-            shares = estimator.shares.tolist()  # w_k std(A'_k) / Σ_j w_j std(A'_j) of the last epoch's advantages
-            metrics.update({f"share/{name}": share for name, share in zip(components, shares, strict=True)})
+            shares = estimator.shares.tolist()  # |c_j| std(A'_j) / Σ_i |c_i| std(A'_i) of the last epoch's advantages
+            columns = getattr(estimator, "columns", components)  # the components, then the anchor when anchored
+            metrics.update({f"share/{name}": share for name, share in zip(columns, shares, strict=True)})
 
             # ---- 4. after the update: observation statistics, learning rate, policy weights -----------------
             # only now, so the log-probabilities stored at collection stay those of the policy being optimised

@@ -125,7 +125,8 @@ def build_critic(
     activation: str = "tanh",
     separate_heads: bool = False,
     in_key: str = "observation",
+    anchor_head: bool = False,
 ) -> TensorDictModule:
-    """A :class:`MultiHeadCritic` writing ``"state_value"`` ``[*B, K]``."""
-    critic = MultiHeadCritic(obs_dim, num_heads, hidden_sizes, activation, separate_heads)
+    """A :class:`MultiHeadCritic` writing ``"state_value"`` ``[*B, K]`` (``[*B, K + 1]`` with ``anchor_head``)."""
+    critic = MultiHeadCritic(obs_dim, num_heads, hidden_sizes, activation, separate_heads, anchor_head)
     return TensorDictModule(nn.Sequential(obs_norm, critic), in_keys=[in_key], out_keys=["state_value"])

@@ -63,6 +63,9 @@ class MultiHeadCritic(nn.Module):
 
     ``separate_heads=False``: a shared trunk whose last layer has K outputs (cheap, shared features).
     ``separate_heads=True``: K independent MLPs evaluated as one batched computation (no loop over K).
+    ``anchor_head=True``: one more value, from an MLP of its own (the same widths), appended as column K + 1: the
+    anchored mix's value of the summed reward (:class:`~torchrl_ahrs.value.WeightedMultiGAE` with
+    ``anchored=True``), learnt apart from the K heads as PPO's one critic is.
 
     Args:
         in_features: observation size.
@@ -70,8 +73,9 @@ class MultiHeadCritic(nn.Module):
         hidden_sizes: widths of the hidden layers.
         activation: ``"tanh"``, ``"relu"`` or ``"elu"``.
         separate_heads: one MLP per component instead of a shared trunk.
+        anchor_head: append the anchor's value from a separate MLP.
 
-    Shapes: ``observation [*B, in] -> state_value [*B, K]``.
+    Shapes: ``observation [*B, in] -> state_value [*B, K]`` (``[*B, K + 1]`` with ``anchor_head``).
 
     Example:
         >>> critic = MultiHeadCritic(in_features=8, num_heads=4, hidden_sizes=[32, 32])
@@ -79,6 +83,8 @@ class MultiHeadCritic(nn.Module):
         torch.Size([10, 4])
         >>> MultiHeadCritic(8, 4, [32], separate_heads=True)(torch.zeros(10, 8)).shape
         torch.Size([10, 4])
+        >>> MultiHeadCritic(8, 4, [32], anchor_head=True)(torch.zeros(10, 8)).shape
+        torch.Size([10, 5])
     """
 
     def __init__(
@@ -88,12 +94,16 @@ class MultiHeadCritic(nn.Module):
         hidden_sizes: Sequence[int] = (256, 256),
         activation: str = "tanh",
         separate_heads: bool = False,
+        anchor_head: bool = False,
     ):
         super().__init__()
         if num_heads < 1:
             raise ValueError(f"num_heads must be >= 1, got {num_heads}")
         self.num_heads = num_heads
         self.separate_heads = separate_heads
+        # built first: for a seed, the anchor starts from the weights PPO's one-head critic starts from (the same
+        # draws at the same point), so an anchored method at equal weights begins where PPO begins
+        self.anchor = make_mlp(in_features, hidden_sizes, 1, activation) if anchor_head else None
         if not separate_heads:
             self.net = make_mlp(in_features, hidden_sizes, num_heads, activation)
             return
@@ -107,4 +117,7 @@ class MultiHeadCritic(nn.Module):
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         values = self.net(observation)
-        return values.squeeze(-1) if self.separate_heads else values  # [*B, K]
+        values = values.squeeze(-1) if self.separate_heads else values  # [*B, K]
+        if self.anchor is None:
+            return values
+        return torch.cat([values, self.anchor(observation)], dim=-1)  # [*B, K + 1]: V_1 .. V_K, V_Σ

@@ -61,6 +61,24 @@ def mix_advantages(advantages: torch.Tensor, weights: torch.Tensor) -> torch.Ten
     return (advantages * weights).sum(-1, keepdim=True)  # A = sum_k w_k A_k
 
 
+def anchored_coefficients(weights: torch.Tensor) -> torch.Tensor:
+    """The anchored mix's coefficients on ``[A_1 .. A_K, A_Σ]``: ``[K] -> [K + 1]``.
+
+    ``A = w̄ A_Σ + Σ_k (w_k - w̄) A_k``, with ``A_Σ`` the advantage of the summed reward from a critic of its own:
+    the K-head critic enters only through the weights' deviations from their mean, so equal weights give
+    ``w̄ A_Σ``, PPO's advantage up to a scale, whatever the K heads have learnt. GAE is linear, so when every
+    critic is exact (``A_Σ = Σ_k A_k``) this is ``Σ_k w_k A_k``, the unanchored mix.
+
+    Example:
+        >>> anchored_coefficients(torch.tensor([0.5, 1.0, 1.5])).tolist()
+        [-0.5, 0.0, 0.5, 1.0]
+        >>> anchored_coefficients(torch.tensor([0.6, 0.6])).tolist()  # equal weights: the anchor alone
+        [0.0, 0.0, 0.6000000238418579]
+    """
+    mean = weights.mean(-1, keepdim=True)  # w̄ = Σ_k w_k / K
+    return torch.cat([weights - mean, mean], dim=-1)  # [w_1 - w̄, ..., w_K - w̄, w̄]
+
+
 def stack_components(leaves: list[torch.Tensor]) -> torch.Tensor:
     """K leaves ``[*B, 1]`` (or ``[*B]``) -> ``[*B, K]``, refusing leaves of different shapes."""
     shapes = {tuple(leaf.shape) for leaf in leaves}

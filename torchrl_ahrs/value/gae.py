@@ -13,6 +13,7 @@ from torchrl.modules.value_norm import ValueNorm
 from torchrl.objectives.value import GAE
 
 from torchrl_ahrs.value.functional import (
+    anchored_coefficients,
     effective_shares,
     mix_advantages,
     normalize_components,
@@ -21,6 +22,8 @@ from torchrl_ahrs.value.functional import (
 )
 
 COMPONENT_SCALES = ("raw", "standardize", "value_norm")
+MIXES = ("sum", "anchored")  # Σ_k w_k A_k (the paper's), or around the summed reward's own advantage (ppo.mix)
+ANCHOR = "anchor"  # the name of the anchored mix's extra column (the summed reward), in `columns` and share/<c>
 
 
 class WeightedMultiGAE(GAE):
@@ -36,6 +39,14 @@ class WeightedMultiGAE(GAE):
     - ``"value_target"`` ``[*B, T, K]``: each head's regression target;
     - ``"advantage"`` ``[*B, T, 1]``: ``Σ_k w_k A_k`` — the signal the policy is trained on.
 
+    ``anchored=True`` adds a column, the summed reward ``Σ_k r_k`` (named :data:`ANCHOR`), which the value network
+    answers with a value of its own (``MultiHeadCritic(..., anchor_head=True)``: a separate MLP), so every output
+    above has K + 1 columns, and mixes ``A = w̄ A_Σ + Σ_k (w_k - w̄) A_k``
+    (:func:`~torchrl_ahrs.value.functional.anchored_coefficients`). Equal weights then train the policy on PPO's
+    advantage from PPO's kind of critic, one network on the summed reward, and only a schedule's deviations from
+    equal weights read the K heads: a method at equal weights is PPO, so it cannot lose to PPO through the K-head
+    critic alone. When every critic is exact the two mixes agree (GAE is linear).
+
     ``component_scale`` says how each ``A_k`` is scaled before mixing (the unscaled ``A_k`` stay in
     ``"advantage_components"``):
 
@@ -48,8 +59,10 @@ class WeightedMultiGAE(GAE):
       buffers are all zero) the batch's own population std stands in: what it holds once it folds that
       batch in.
 
-    After every call ``shares`` ``[K]`` holds each component's effective share of the mixed advantage,
-    ``w_k std(A'_k) / sum_j w_j std(A'_j)`` with ``A'`` the scaled advantages (logged as ``share/<c>``).
+    After every call ``shares`` ``[C]`` holds each column's effective share of the mixed advantage,
+    ``|c_j| std(A'_j) / sum_i |c_i| std(A'_i)`` with ``A'`` the scaled advantages and ``c`` the mixing coefficients
+    (``w``, or the anchored ones); ``columns`` names them (the components, then :data:`ANCHOR` when anchored) and
+    they are logged as ``share/<column>``.
 
     ``weights`` is a registered buffer ``[K]`` (checkpointed with the module); replace it any time with
     :meth:`set_weights`. Keys are configurable with ``set_keys`` (``reward``, ``advantage``,
@@ -63,9 +76,10 @@ class WeightedMultiGAE(GAE):
         value_network: a module writing ``"state_value"`` ``[*B, T, K]``.
         weights: initial ``[K]`` weights (default all ones).
         component_scale: ``"raw"`` | ``"standardize"`` | ``"value_norm"`` (see above).
-        value_norm: the critic's per-head value normaliser (a TorchRL ``ValueNorm`` with ``shape=K``, e.g.
+        value_norm: the critic's per-head value normaliser (a TorchRL ``ValueNorm`` with ``shape=C``, e.g.
             from :func:`~torchrl_ahrs.training.value_norm.make_value_norm`), or ``None``; required by
             ``component_scale="value_norm"``, only read here (its owner updates it).
+        anchored: mix around the summed reward's own advantage (above); the value network returns K + 1 values.
         **kwargs: forwarded to :class:`torchrl.objectives.value.GAE`.
 
     Example:
@@ -89,6 +103,16 @@ class WeightedMultiGAE(GAE):
         ['advantage', 'advantage_components', 'value_target']
         >>> round(gae.shares.sum().item(), 4)
         1.0
+
+        The anchored mix with equal weights is the anchor's advantage alone (PPO's, from its own critic):
+
+        >>> critic3 = TensorDictModule(torch.nn.Linear(3, 3), in_keys=["observation"], out_keys=["state_value"])
+        >>> anchored = WeightedMultiGAE(["a", "b"], gamma=0.99, lmbda=0.95, value_network=critic3, anchored=True)
+        >>> td = anchored(td)
+        >>> anchored.columns, td["advantage_components"].shape
+        (['a', 'b', 'anchor'], torch.Size([4, 8, 3]))
+        >>> torch.equal(td["advantage"], td["advantage_components"][..., 2:])
+        True
     """
 
     @dataclass
@@ -116,6 +140,7 @@ class WeightedMultiGAE(GAE):
         weights: torch.Tensor | None = None,
         component_scale: str = "raw",
         value_norm: ValueNorm | None = None,
+        anchored: bool = False,
         **kwargs,
     ):
         super().__init__(gamma=gamma, lmbda=lmbda, value_network=value_network, **kwargs)
@@ -129,10 +154,14 @@ class WeightedMultiGAE(GAE):
                 "component_scale='value_norm' divides each A_k by its head's scale in the critic's value "
                 "normaliser: pass value_norm= (in a run: ppo.value_norm=running or popart)"
             )
+        if anchored and ANCHOR in self.components:
+            raise ValueError(f"the anchored mix names its extra column {ANCHOR!r}: rename that reward component")
         self.component_scale = component_scale
         self.value_norm = value_norm
+        self.anchored = bool(anchored)
+        self.columns = self.components + ([ANCHOR] if self.anchored else [])  # the GAE columns, C = K (+ 1)
         self.register_buffer("weights", torch.ones(len(self.components)))
-        self.register_buffer("shares", torch.full((len(self.components),), 1.0 / len(self.components)))
+        self.register_buffer("shares", torch.full((len(self.columns),), 1.0 / len(self.columns)))
         if weights is not None:
             self.set_weights(weights)
 
@@ -167,6 +196,10 @@ class WeightedMultiGAE(GAE):
         if not torch.isfinite(weights).all():
             raise ValueError(f"weights must be finite, got {weights.tolist()}")
         self.weights.copy_(weights)
+
+    def mixing_coefficients(self) -> torch.Tensor:
+        """``[C]``: the weights ``w`` or, anchored, ``[w_1 - w̄, ..., w_K - w̄, w̄]``."""
+        return anchored_coefficients(self.weights) if self.anchored else self.weights
 
     def component_reward_keys(self) -> list[tuple]:
         """``[("next", *reward, c) for c in components]``: the leaves read, in K order."""
@@ -205,8 +238,9 @@ class WeightedMultiGAE(GAE):
             component_advantages = tensordict.get(self.tensor_keys.advantage)  # [*B, T, K]
             tensordict.set(self.tensor_keys.advantage_components, component_advantages)
             to_mix = self.scale_components(component_advantages, tensordict.get(self.tensor_keys.value_target))
-            self.shares.copy_(effective_shares(to_mix, self.weights))  # [K]
-            tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, self.weights))  # [*B, T, 1]
+            coefficients = self.mixing_coefficients()  # [C]
+            self.shares.copy_(effective_shares(to_mix, coefficients))  # [C]
+            tensordict.set(self.tensor_keys.advantage, mix_advantages(to_mix, coefficients))  # [*B, T, 1]
         return tensordict
 
     def scale_components(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
@@ -226,10 +260,13 @@ class WeightedMultiGAE(GAE):
 
     def _prepare_signals(self, reward, done, terminated, value):
         rewards = stack_components([reward.get(name) for name in self.components])  # [*B, T, K]
+        if self.anchored:  # the anchor's column: the summed reward, r_Σ = Σ_k r_k
+            rewards = torch.cat([rewards, rewards.sum(-1, keepdim=True)], dim=-1)  # [*B, T, K + 1]
         # TorchRL's recursion broadcasts silently; a critic with the wrong number of heads must fail loudly.
         if value.shape[-1] != rewards.shape[-1]:
             raise ValueError(
                 f"the value network returned {value.shape[-1]} value(s) per state but there are "
-                f"{rewards.shape[-1]} reward components {self.components}; build the critic with K heads"
+                f"{rewards.shape[-1]} GAE columns {self.columns}; build the critic with one head per column"
+                + (" (MultiHeadCritic(..., anchor_head=True) for the anchor)" if self.anchored else "")
             )
         return rewards, done.expand_as(rewards), terminated.expand_as(rewards)

@@ -17,6 +17,7 @@ from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
 from torchrl_ahrs.training.models import DISTRIBUTIONS
 from torchrl_ahrs.training.run import ADVANTAGE_PASSES, KL_ADAPTS
+from torchrl_ahrs.value.gae import MIXES
 
 __all__ = [
     "check_device",
@@ -131,6 +132,8 @@ def validate_config(cfg: DictConfig) -> None:
             raise ConfigError(f"ppo.{name} must be a positive number or null, got {value!r}")
     if ppo.get("kl_adapts", "all") not in KL_ADAPTS:
         raise ConfigError(f"ppo.kl_adapts must be one of {', '.join(KL_ADAPTS)}, got {ppo.kl_adapts!r}")
+    if ppo.get("mix", "sum") not in MIXES:
+        raise ConfigError(f"ppo.mix must be one of {', '.join(MIXES)}, got {ppo.mix!r}")
     if ppo.get("advantage_pass", "every_epoch") not in ADVANTAGE_PASSES:
         raise ConfigError(
             f"ppo.advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {ppo.advantage_pass!r}"

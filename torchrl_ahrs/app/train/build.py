@@ -146,12 +146,18 @@ def build_networks(
             model.activation,
             model.separate_heads,
             in_key=critic_key,
+            anchor_head=anchored(cfg),  # the anchored mix's value of the summed reward, from an MLP of its own
         )
     actor.to(device)  # moves actor_norm (and critic_norm when they are one module) too
     if critic is not None:
         critic.to(device)
     critic_norm.to(device)
     return Networks(actor, critic, actor_norm, critic_norm, critic_key)
+
+
+def anchored(cfg: DictConfig) -> bool:
+    """``ppo.mix=anchored`` (a run saved before the key mixed ``sum``)."""
+    return cfg.ppo.get("mix", "sum") == "anchored"
 
 
 def build_estimator_and_loss(
@@ -164,7 +170,7 @@ def build_estimator_and_loss(
     them mapped back to reward units (training/value_norm.py); the statistics live in the estimator's
     value network (checkpointed with it) and are reachable as ``estimator.value_norm``."""
     ppo = cfg.ppo
-    value_norm = make_value_norm(ppo.get("value_norm"), len(components))
+    value_norm = make_value_norm(ppo.get("value_norm"), len(components) + anchored(cfg))  # one per GAE column
     gae_critic = denormalized_critic(networks.critic, value_norm) if value_norm is not None else networks.critic
     estimator = WeightedMultiGAE(
         list(components),
@@ -173,6 +179,7 @@ def build_estimator_and_loss(
         value_network=gae_critic,
         component_scale=ppo.component_scale,
         value_norm=value_norm,  # read by component_scale=value_norm; updated by the loop (training/loop.py)
+        anchored=anchored(cfg),
     )
     estimator.to(device)  # the weights [K] and shares [K] buffers, and the value-norm statistics
     loss = HybridClipPPOLoss(
