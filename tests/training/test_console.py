@@ -116,6 +116,20 @@ def test_decision_lines_are_short_and_methods_without_a_schedule_have_none(caplo
     assert sum(note in r.getMessage() for r in caplog.records) == 1  # the stand-in note: once, at start
 
 
+# point_reach with the bandit deciding, and a table printed, after every iteration of 1 024 frames
+TABLE_EVERY_ITERATION = [
+    "task=point_reach",
+    "method=ahrs_wo_a",
+    "trainer.num_envs=16",
+    "trainer.frames_per_batch=1024",
+    "trainer.mini_batch_size=512",
+    "trainer.num_epochs=1",
+    "trainer.table_interval=1",
+    "scheduler.interval=1",
+    "model.hidden_sizes=[16]",
+]
+
+
 def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys, caplog):
     """point_reach with the bandit deciding after every iteration: each table row's weight and share are the CSV's
     weight/<c> and share/<c> of that iteration, its "next" column the following row's weight; the run ends with one
@@ -127,18 +141,7 @@ def test_a_real_run_prints_tables_that_match_its_logged_metrics(tmp_path, capsys
     from torchrl_ahrs.app.train.runs import read_scalar
     from torchrl_ahrs.train import train
 
-    cfg = make_cfg(
-        "task=point_reach",
-        "method=ahrs_wo_a",
-        "trainer.total_frames=3072",
-        "trainer.num_envs=16",
-        "trainer.frames_per_batch=1024",
-        "trainer.mini_batch_size=512",
-        "trainer.num_epochs=1",
-        "trainer.table_interval=1",
-        "scheduler.interval=1",
-        "model.hidden_sizes=[16]",
-    )
+    cfg = make_cfg(*TABLE_EVERY_ITERATION, "trainer.total_frames=3072")
     with warnings.catch_warnings(record=True) as caught, caplog.at_level("INFO", logger="torchrl_ahrs.train"):
         warnings.simplefilter("always", FutureWarning)
         train(cfg, tmp_path)
@@ -178,20 +181,7 @@ def test_an_anchored_run_prints_the_anchors_row_whose_share_completes_the_compon
     from torchrl_ahrs.app.train.runs import read_scalar
     from torchrl_ahrs.train import train
 
-    cfg = make_cfg(
-        "task=point_reach",
-        "method=ahrs_wo_a",
-        "ppo.mix=anchored",
-        "trainer.total_frames=2048",
-        "trainer.num_envs=16",
-        "trainer.frames_per_batch=1024",
-        "trainer.mini_batch_size=512",
-        "trainer.num_epochs=1",
-        "trainer.table_interval=1",
-        "scheduler.interval=1",
-        "model.hidden_sizes=[16]",
-        "logger.backends=[csv]",
-    )
+    cfg = make_cfg(*TABLE_EVERY_ITERATION, "ppo.mix=anchored", "trainer.total_frames=2048", "logger.backends=[csv]")
     train(cfg, tmp_path)
     lines = capsys.readouterr().err.splitlines()
     starts = [i for i, line in enumerate(lines) if line.startswith("it ")]
