@@ -5,6 +5,8 @@
 prints, per run and per bin of ``--bin`` frames (default 0.5M), the mean per-step reward of ``--term``
 (default ``tracking_lin_vel``, in 10^-3; Cassie collects ~3.9 standing still and 20 following every command)
 and the episodes ended per batch (fewer = longer episodes). The RESULTS.md Cassie tables quote these numbers.
+``--scalar <name>`` bins any other logged scalar instead, as logged (e.g. ``--scalar train/entropy``: the policy's
+entropy per batch, which round 19 of issue 26 compares between runs that walk and runs that do not).
 
 A batch belongs to the bin where its frames start: rows are logged at the frames collected *after* the batch,
 so the last batch of a 2.5M-frame run (logged at 2 500 608) counts in "2-2.5M", not in a bin of its own.
@@ -46,10 +48,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--term", default="tracking_lin_vel")
+    parser.add_argument("--scalar", default=None, help="bin metrics/scalars/<scalar>.csv as logged, not a reward term")
     parser.add_argument("--bin", type=int, default=500_000)
     args = parser.parse_args()
+    name, scale = (args.scalar, 1.0) if args.scalar else (f"reward/{args.term}", 1e3)  # rewards print in 10^-3
     for run_dir in args.runs:
-        logged = read_scalar(run_dir, f"reward/{args.term}")  # one row per batch, at the frames after it
+        logged = read_scalar(run_dir, name)  # one row per batch, at the frames after it
         term_rows = batch_starts(logged)
         first_frame = {end: start for (end, _), (start, _) in zip(logged, term_rows, strict=True)}
         # a row only for batches where an episode ended, placed at its batch's first frame
@@ -59,7 +63,7 @@ def main() -> None:
             batches = sum(1 for frames, _ in term_rows if start <= frames < start + args.bin)
             ended = sum(count for frames, count in ended_rows if start <= frames < start + args.bin)
             span = f"{start / 1e6:g}-{(start + args.bin) / 1e6:g}M"  # the bin [start, start + width)
-            cells.append(f"{span}: {value * 1e3:5.2f} eps/batch {ended / batches:4.1f}")
+            cells.append(f"{span}: {value * scale:5.2f} eps/batch {ended / batches:4.1f}")
         print(f"{run_dir.name}: " + " | ".join(cells))
 
 

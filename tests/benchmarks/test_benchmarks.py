@@ -198,6 +198,18 @@ def test_curve_bins_bins_each_batch_where_its_frames_start_and_counts_episodes_o
     assert out.strip() == "run: 0-0.001M:  4.00 eps/batch  1.3 | 0.001-0.002M:  8.00 eps/batch  0.0"
 
 
+def test_curve_bins_scalar_bins_any_logged_scalar_as_logged(tmp_path, monkeypatch, capsys):
+    """Oracle: the same hand-written layout with a train/entropy scalar: bin [0, 1000) holds 2.0, 3.0 and 4.0
+    (mean 3.00, not scaled as rewards are), bin [1000, 2000) holds 1.5."""
+    scalars = tmp_path / "run" / "metrics" / "scalars"
+    (scalars / "train").mkdir(parents=True)
+    (scalars / "train" / "entropy.csv").write_text("step,value\n100,2.0\n200,3.0\n1000,4.0\n1100,1.5\n")
+    (scalars / "episodes.csv").write_text("step,value\n200,1.0\n")
+    argv = [str(tmp_path / "run"), "--bin", "1000", "--scalar", "train/entropy"]
+    out = run_script("learning/curve_bins.py", argv, monkeypatch, capsys)
+    assert out.strip() == "run: 0-0.001M:  3.00 eps/batch  0.3 | 0.001-0.002M:  1.50 eps/batch  0.0"
+
+
 def write_evaluated_run(run_dir: Path, seed: int, error: float, lengths: list[int], total: float = 0.0) -> None:
     """A run directory as training and `torchrl_ahrs.evaluate` leave it: config.yaml, evaluation.json and the
     reward/total scalars (two batches of 1 000 frames: `total` per step in the second, 0 in the first)."""
