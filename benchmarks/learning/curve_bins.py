@@ -54,6 +54,9 @@ def main() -> None:
     name, scale = (args.scalar, 1.0) if args.scalar else (f"reward/{args.term}", 1e3)  # rewards print in 10^-3
     for run_dir in args.runs:
         logged = read_scalar(run_dir, name)  # one row per batch, at the frames after it
+        if not logged:  # e.g. method=ppo logs no reward terms; entropy_coeff=0 logs no entropy
+            print(f"{run_dir.name}: no metrics/scalars/{name}.csv")
+            continue
         term_rows = batch_starts(logged)
         first_frame = {end: start for (end, _), (start, _) in zip(logged, term_rows, strict=True)}
         # a row only for batches where an episode ended, placed at its batch's first frame

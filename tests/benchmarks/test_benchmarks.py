@@ -208,6 +208,8 @@ def test_curve_bins_scalar_bins_any_logged_scalar_as_logged(tmp_path, monkeypatc
     argv = [str(tmp_path / "run"), "--bin", "1000", "--scalar", "train/entropy"]
     out = run_script("learning/curve_bins.py", argv, monkeypatch, capsys)
     assert out.strip() == "run: 0-0.001M:  3.00 eps/batch  0.3 | 0.001-0.002M:  1.50 eps/batch  0.0"
+    out = run_script("learning/curve_bins.py", [str(tmp_path / "run")], monkeypatch, capsys)  # no reward terms
+    assert out.strip() == "run: no metrics/scalars/reward/tracking_lin_vel.csv"
 
 
 def write_evaluated_run(run_dir: Path, seed: int, error: float, lengths: list[int], total: float = 0.0) -> None:
