@@ -4,6 +4,8 @@ of the layout before the loop."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -103,6 +105,20 @@ def test_a_policy_that_does_not_move_sees_ratio_one_on_every_batch_it_collected(
     assert len(max_ratio) == ITERATIONS
     assert max_ratio.tolist() == pytest.approx([1.0] * ITERATIONS, abs=1e-4)
     assert clip_fraction.tolist() == [0.0] * ITERATIONS
+
+
+@pytest.mark.parametrize("entropy_coeff", [0.0, 0.01])
+def test_the_noise_std_is_logged_whatever_the_entropy_coefficient(tmp_path, entropy_coeff):
+    """Oracle: analytic. The first batch is collected by the initial policy, whose σ is exp(init_log_std) in every
+    action dimension; later batches follow the update. With entropy_coeff=0 TorchRL's loss computes no entropy, so
+    this is the run's only record of its exploration noise."""
+    run = RunDirectory(tmp_path)
+    train(make_cfg(*TINY, f"ppo.entropy_coeff={entropy_coeff}", "model.init_log_std=-1.0"), run.path)
+    _, noise_std = read_scalar(run.scalar("train/noise_std"))
+    assert len(noise_std) == ITERATIONS
+    assert noise_std[0] == pytest.approx(math.exp(-1.0), rel=1e-6)
+    assert noise_std[-1] != pytest.approx(math.exp(-1.0), rel=1e-6)  # the update moved σ
+    assert (tmp_path / "metrics" / "scalars" / "train" / "entropy.csv").exists() == (entropy_coeff > 0)
 
 
 def test_the_total_explained_variance_is_that_of_the_summed_heads_on_the_collected_batch(tmp_path, monkeypatch):

@@ -51,6 +51,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
     components = list(estimator.components)
     tracked = components + ([TOTAL] if TOTAL not in components else [])
     keys = [*run.loss.in_keys, *MINIBATCH_KEYS]
+    scale_key = getattr(run.loss.tensor_keys, "scale", "scale")  # where the collecting policy wrote its Gaussian's σ
     params = [param for group in optimizer.param_groups for param in group["params"]]
     max_norm = math.inf if settings.max_grad_norm is None else settings.max_grad_norm
     for group in optimizer.param_groups:  # lr_0 of the anneal, saved with the optimiser (torch's schedulers' key)
@@ -83,6 +84,8 @@ def learn(run: TrainingRun) -> dict[str, float]:
                 metrics["episodes"] = float(returns.shape[0])
                 metrics.update({f"return/{c}": r for c, r in zip(tracked, returns.mean(0).tolist(), strict=True)})
             metrics.update(run.scheduler.observe_batch(batch))  # into its statistics; weight/<c> in force
+            if scale_key in batch.keys(include_nested=True):  # logged whatever the entropy coefficient (0: no entropy)
+                metrics["train/noise_std"] = batch.get(scale_key).mean().item()  # mean σ before any squash, as rsl_rl
 
             # ---- 3. PPO epochs ------------------------------------------------------------------------------
             last_epoch_losses: list[TensorDictBase] = []  # train/<term> is the last epoch's mean over its minibatches
