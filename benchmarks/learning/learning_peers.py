@@ -19,6 +19,9 @@ ours: 10 environments seeded 12345, each one's first episode, the policy's mean 
 
 The settings, with their sources:
 
+Both ``ant_v5`` peers make gymnasium's ``Ant-v5`` with our preset's observation (no contact forces, 27 entries:
+``reference_ppo.ours_gymnasium_kwargs``); a peer env that observes otherwise is refused before it trains.
+
 * ``torchrl`` (gymnasium ``Ant-v5``): TorchRL's ``sota-implementations/ppo`` MuJoCo config, see
   ``reference_ppo.py``; its total-frames horizon (1M, the learning-rate annealing horizon) unless ``--frames``.
 * ``sb3`` (gymnasium ``Ant-v5``): rl-baselines3-zoo ``hyperparams/ppo.yml``, entry ``Ant-v4`` (no ``Ant-v5``
@@ -151,6 +154,24 @@ class CurveWriter:
         self._file.flush()
 
 
+def require_our_observation(task: str, size: int) -> None:
+    """Refuse, before any training, a peer env whose observation has another size than our ``task`` env's.
+
+    The peer is evaluated on our env (:func:`evaluate_policy`); a mismatch found there would throw the whole
+    training budget away.
+    """
+    from torchrl_ahrs.app.shared.settings import load_task_settings
+    from torchrl_ahrs.envs.registry import make_env
+
+    env = make_env(load_task_settings(task), 1, 0)
+    ours = env.observation_spec["observation"].shape[-1]
+    env.close()
+    if size != ours:
+        raise SystemExit(
+            f"the peer's env observes {size} entries, our {task} env {ours}: they train different problems"
+        )
+
+
 def evaluate_policy(task: str, policy: Policy, episodes: int = EVAL_EPISODES, seed: int = EVAL_SEED) -> dict[str, Any]:
     """``policy`` on our ``task`` env as ``python -m torchrl_ahrs.evaluate`` runs ours: ``episodes`` envs seeded
     ``seed``, each one's first episode, under ``ExplorationType.DETERMINISTIC``; every task component and
@@ -177,12 +198,15 @@ def evaluate_policy(task: str, policy: Policy, episodes: int = EVAL_EPISODES, se
 
 def train_torchrl(task: str, seed: int, budget: Budget, curve: CurveWriter) -> tuple[Policy, dict[str, Any]]:
     """TorchRL's sota MuJoCo PPO on gymnasium Ant-v5; stops before the update of the batch that ends the budget."""
-    from reference_ppo import ReferenceConfig, ReferencePPO
+    from reference_ppo import ReferenceConfig, ReferencePPO, ours_gymnasium_kwargs
 
     if task != "ant_v5":
         raise ValueError(f"the torchrl peer trains gymnasium Ant-v5 (task ant_v5), not {task!r}")
-    config = ReferenceConfig(total_frames=budget.frames or DEFAULT_FRAMES["torchrl"])
+    config = ReferenceConfig(
+        total_frames=budget.frames or DEFAULT_FRAMES["torchrl"], env_kwargs=ours_gymnasium_kwargs()
+    )
     ppo = ReferencePPO(config, seed)
+    require_our_observation(task, ppo.env.observation_spec["observation"].shape[-1])
     trained, reason = 0, "frames"
     for data in ppo.batches():
         done = data.get(("next", "done"))
@@ -200,6 +224,7 @@ def train_torchrl(task: str, seed: int, budget: Budget, curve: CurveWriter) -> t
 def train_sb3(task: str, seed: int, budget: Budget, curve: CurveWriter) -> tuple[Policy, dict[str, Any]]:
     """SB3 PPO with the zoo's Ant settings on gymnasium Ant-v5 (one env, ``VecNormalize``)."""
     import numpy as np
+    from reference_ppo import ours_gymnasium_kwargs
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
@@ -207,7 +232,9 @@ def train_sb3(task: str, seed: int, budget: Budget, curve: CurveWriter) -> tuple
 
     if task != "ant_v5":
         raise ValueError(f"the sb3 peer trains gymnasium Ant-v5 (task ant_v5), not {task!r}")
-    env = VecNormalize(make_vec_env("Ant-v5", n_envs=1, seed=seed))  # Monitor inside: raw episode returns
+    vec_env = make_vec_env("Ant-v5", n_envs=1, seed=seed, env_kwargs=ours_gymnasium_kwargs())
+    env = VecNormalize(vec_env)  # Monitor (inside) records raw episode returns
+    require_our_observation(task, env.observation_space.shape[-1])
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **SB3_ZOO_ANT)
 
     class Recorder(BaseCallback):

@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -61,6 +62,7 @@ class ReferenceConfig:
     """
 
     env_name: str = "Ant-v5"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # gymnasium.make's (ours_gymnasium_kwargs: our task's)
     num_envs: int = 1  # gymnasium envs; >1: a ParallelEnv of `workers` processes
     workers: int = 4  # ParallelEnv worker processes when num_envs > 1 (each a SerialEnv of num_envs / workers)
     frames_per_batch: int = 2048
@@ -80,15 +82,35 @@ class ReferenceConfig:
     orthogonal_init: bool = True
 
 
-def make_gym_env(env_name: str = "Ant-v5") -> GymEnv:
+def ours_gymnasium_kwargs(task: str = "ant_v5") -> dict[str, Any]:
+    """``gymnasium.make`` keyword arguments that give gymnasium's Ant-v5 the observation of our ``task``.
+
+    Our ``ant_v5`` preset leaves the contact forces out (27 entries, as gymnasium's Ant-v4 and CleanRL's runs);
+    gymnasium's Ant-v5 includes them by default (105). A peer trained on the default could not be evaluated on
+    our env, and would not be learning the same problem.
+
+    Example:
+        >>> ours_gymnasium_kwargs("ant_v5")
+        {'include_cfrc_ext_in_observation': False}
+    """
+    from torchrl_ahrs.app.shared.settings import load_task_settings
+    from torchrl_ahrs.envs.settings import AntV5Settings
+
+    settings = load_task_settings(task)
+    if not isinstance(settings, AntV5Settings):
+        raise ValueError(f"gymnasium's Ant-v5 mirrors task ant_v5, not {task!r}")
+    return {"include_cfrc_ext_in_observation": settings.include_cfrc_ext_in_observation}
+
+
+def make_gym_env(env_name: str = "Ant-v5", env_kwargs: dict[str, Any] | None = None) -> GymEnv:
     """One gymnasium environment through TorchRL's ``GymEnv`` (a module-level function: picklable for workers)."""
-    return GymEnv(env_name)
+    return GymEnv(env_name, **(env_kwargs or {}))
 
 
 def make_reference_env(config: ReferenceConfig, seed: int) -> TransformedEnv:
     """The reference's training env: batch size ``[]`` (one env), ``[N]`` or ``[W, N/W]`` (``ParallelEnv`` of
     ``SerialEnv``), with VecNorm, ClipTransform, RewardSum, StepCounter and DoubleToFloat."""
-    make_one = functools.partial(make_gym_env, config.env_name)
+    make_one = functools.partial(make_gym_env, config.env_name, config.env_kwargs)
     if config.num_envs == 1:
         base = make_one()
     elif config.workers >= config.num_envs:

@@ -146,3 +146,21 @@ def test_learning_runs_ours_and_sb3_end_to_end_writes_a_table_that_parses_and_re
     for row in summary:
         assert len(row["load_start"].split()) == 3 and len(row["load_end"].split()) == 3  # os.getloadavg()
         assert math.isfinite(float(row["eval_return"])) and row["stop"] == "frames"
+
+
+def test_the_torchrl_peer_observes_what_our_ant_env_observes_and_a_mismatch_is_refused_before_training():
+    pytest.importorskip("gymnasium")
+    sys.path.insert(0, str(LEARNING))
+    try:
+        from learning_peers import require_our_observation
+        from reference_ppo import make_gym_env, ours_gymnasium_kwargs
+    finally:
+        sys.path.remove(str(LEARNING))
+    ours_kind, default = make_gym_env("Ant-v5", ours_gymnasium_kwargs("ant_v5")), make_gym_env("Ant-v5")
+    sizes = [env.observation_spec["observation"].shape[-1] for env in (ours_kind, default)]
+    assert sizes == [27, 105]  # gymnasium Ant-v5 without and with the contact forces
+    require_our_observation("ant_v5", sizes[0])  # our preset's 27 entries: accepted
+    with pytest.raises(SystemExit, match="observes 105 entries, our ant_v5 env 27"):
+        require_our_observation("ant_v5", sizes[1])
+    with pytest.raises(ValueError, match="mirrors task ant_v5, not 'cassie'"):
+        ours_gymnasium_kwargs("cassie")
