@@ -53,6 +53,7 @@ VARIANTS: dict[str, list[str]] = {
     "compile": ["trainer.compile=true"],  # the loss's forward through torch.compile (inductor)
     "threads1": ["trainer.torch_threads=1"],
     "threads2": ["trainer.torch_threads=2"],  # a second intra-op thread for the networks
+    "half": ["model.hidden_sizes=[256,128,64]"],  # half of every width of Cassie's [512, 256, 128] (RESULTS round 21)
 }
 
 
@@ -65,7 +66,7 @@ def variant_overrides(variant: str) -> list[str]:
         >>> variant_overrides("fast")
         Traceback (most recent call last):
         ...
-        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2 (join with +)
+        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2, half (join with +)
     """
     overrides = []
     for name in variant.split("+"):
