@@ -131,6 +131,21 @@ def test_a_compiled_loss_trains_like_the_eager_one(tmp_path):
         torch.testing.assert_close(torch.tensor(compiled_curves[name]), torch.tensor(values), rtol=tolerance, atol=1e-5)
 
 
+def test_compile_without_a_working_compiler_warns_and_trains_eagerly(tmp_path, monkeypatch, caplog):
+    # inductor's C++ compiler made unusable for this test: without the probe the run stopped at its first minibatch
+    import torch._inductor.config as inductor_config
+
+    monkeypatch.setattr(inductor_config.cpp, "cxx", ("/nonexistent/g++",))
+    eager, eager_state = run_once(tmp_path, "eager")
+    with caplog.at_level("WARNING", logger="torchrl_ahrs.train"):
+        fallen_back, fallen_back_state = run_once(tmp_path, "compile", "trainer.compile=true")
+    (warning,) = [record.getMessage() for record in caplog.records if "trainer.compile" in record.getMessage()]
+    assert "InvalidCxxCompiler" in warning and warning.endswith("the loss runs eagerly"), warning
+    for part in ("actor", "critic"):  # eagerly means bit for bit the run without the option
+        for key, value in eager_state[part].items():
+            assert torch.equal(fallen_back_state[part][key], value), f"{part} {key}"
+
+
 def test_with_kl_adapts_actor_the_kl_rule_sets_the_actors_rate_and_the_critic_keeps_trainer_lr(tmp_path):
     small_target = ("ppo.kl_target=1e-6", "trainer.lr=1e-3")  # every minibatch moves the policy past 2e-6: lr / 1.5
     _, shared = run_once(tmp_path, "all", *small_target)

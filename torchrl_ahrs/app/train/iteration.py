@@ -43,7 +43,7 @@ from torchrl_ahrs.app.train.checkpoint import (
     truncate_jsonl,
     truncate_metrics,
 )
-from torchrl_ahrs.app.train.preflight import check_config, check_task_rewards
+from torchrl_ahrs.app.train.preflight import check_config, check_task_rewards, inductor_failure
 from torchrl_ahrs.app.train.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.loggers import ConsoleProgress, build_logger
@@ -59,6 +59,12 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     started = time.monotonic()
     check_config(cfg)  # the start-up checks: before anything is built or written (app/train/preflight.py)
     validate_config(cfg)
+    compile_loss = bool(cfg.trainer.get("compile", False))
+    if compile_loss and (why := inductor_failure()) is not None:  # no C++ compiler: train eagerly, and say so
+        log.warning(
+            "trainer.compile=true, but torch.compile cannot build on this machine (%s); the loss runs eagerly", why
+        )
+        compile_loss = False
     run = RunDirectory(run_dir).mkdir()
     done = collected_frames(run.path) if cfg.get("resume") else None
     if done is not None and done >= cfg.trainer.total_frames:
@@ -124,7 +130,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         anneal_lr=bool(cfg.trainer.anneal_lr),
         kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
         advantage_pass=cfg.ppo.get("advantage_pass", "every_epoch"),  # a run saved before the key: every epoch
-        compile=bool(cfg.trainer.get("compile", False)),
+        compile=compile_loss,
     )
     # the run's state: one entry per owner (listed in app/train/checkpoint.py); saved after the iteration's last step
     registry: dict[str, Any] = {

@@ -15,6 +15,10 @@ exit status 2. What each catches, and what happened without it:
 * a missing API key for the LLM provider: every decision failed, fell back, and the weights never moved;
 * a reward component whose environment term never appears, or components that do not add up to the native
   reward: a component that is silently zero (or wrong) at every step.
+
+:func:`inductor_failure` is a check of the machine, not of the config: ``trainer.compile=true`` on a machine where
+inductor cannot build (no C++ compiler) would otherwise stop the run at its first minibatch; the caller warns
+and trains eagerly instead.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ __all__ = [
     "check_llm_credentials",
     "check_reward_terms",
     "check_task_rewards",
+    "inductor_failure",
     "shipped_keys",
 ]
 
@@ -221,6 +226,31 @@ def check_llm_credentials(llm: Any) -> None:
     problem = credential_problem(LLMConfig.from_cfg(container))
     if problem:
         raise PreflightError(problem)
+
+
+# ---------------------------------------------------------------------------------------------- the machine
+def inductor_failure() -> str | None:
+    """``None`` when ``torch.compile`` (inductor) can build a forward and a backward on this machine, else the
+    first line of why not (``"InvalidCxxCompiler: No working C++ compiler found ..."``).
+
+    A two-element function is compiled and differentiated, so the check costs a few seconds, and only a run with
+    ``trainer.compile=true`` makes it. It catches what fails before the first kernel runs
+    (``BackendCompilerFailed``: no compiler, a broken toolchain); it draws no random numbers, so a run that then
+    trains eagerly draws the numbers of a run with ``trainer.compile=false``. The backward is built at the first
+    ``backward()``, so both are exercised.
+
+    Example:
+        >>> inductor_failure() is None or inductor_failure().startswith(("InvalidCxxCompiler", "CppCompileError"))
+        True
+    """
+    from torch._dynamo.exc import BackendCompilerFailed  # deferred: importing dynamo costs a second
+
+    probe = torch.ones(2, requires_grad=True)
+    try:
+        torch.compile(lambda x: (x.sin() * 2.0).sum())(probe).backward()  # d/dx 2 sin x = 2 cos x: one kernel each way
+    except BackendCompilerFailed as error:
+        return str(error).strip().splitlines()[0]
+    return None
 
 
 # ---------------------------------------------------------------------------------------------- the rewards
