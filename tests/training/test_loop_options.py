@@ -133,8 +133,14 @@ def test_a_compiled_loss_trains_like_the_eager_one(tmp_path):
 
 def test_compile_without_a_working_compiler_warns_and_trains_eagerly(tmp_path, monkeypatch, caplog):
     # inductor's C++ compiler made unusable for this test: without the probe the run stopped at its first minibatch
+    import torch._dynamo
+    import torch._functorch.config as functorch_config
     import torch._inductor.config as inductor_config
 
+    # what an earlier compiled run built (in this process, or in the on-disk caches) would load without a compiler
+    torch._dynamo.reset()
+    monkeypatch.setattr(inductor_config, "fx_graph_cache", False)
+    monkeypatch.setattr(functorch_config, "enable_autograd_cache", False)
     monkeypatch.setattr(inductor_config.cpp, "cxx", ("/nonexistent/g++",))
     eager, eager_state = run_once(tmp_path, "eager")
     with caplog.at_level("WARNING", logger="torchrl_ahrs.train"):
