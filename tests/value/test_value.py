@@ -7,6 +7,7 @@ from tensordict.nn import TensorDictModule
 from torchrl.objectives.value import GAE
 
 from torchrl_ahrs.value import MultiHeadCritic, WeightedMultiGAE, mix_advantages
+from torchrl_ahrs.value.gae import GEMM_ROW_BLOCK
 
 B, T, K, OBS = 6, 40, 5, 3
 NAMES = [f"c{k}" for k in range(K)]
@@ -163,3 +164,54 @@ def test_the_anchored_mix_refuses_a_component_named_like_its_column_and_a_critic
     gae = WeightedMultiGAE(NAMES, gamma=0.9, lmbda=0.9, value_network=critic, anchored=True)  # K values, not K + 1
     with pytest.raises(ValueError, match=r"returned 5 value\(s\) per state but there are 6 GAE columns.*anchor_head"):
         gae(make_batch())
+
+
+def make_chained_batch(seed=0, end_rate=0.08):
+    """A batch laid out as a collector delivers it: the next state of step t is the state of step t + 1
+    unless the episode ended at t, where the next state is the final one and step t + 1 starts afresh."""
+    gen = torch.Generator().manual_seed(seed)
+    batch = make_batch(seed, end_rate)
+    ended = batch["next", "done"][..., 0]
+    states = batch["observation"].clone()
+    next_states = batch["next", "observation"]
+    for t in range(T - 1):
+        went_on = ~ended[:, t]
+        states[went_on, t + 1] = next_states[went_on, t]
+    batch["observation"] = states
+    assert ended[:, :-1].any() and not torch.equal(states[:, 1:], next_states[:, :-1]), "needs ends inside the window"
+    return batch
+
+
+def count_rows(critic):
+    """Rows the critic's network is called on, counted by a forward hook."""
+    rows = []
+    critic.module.register_forward_hook(lambda module, args, out: rows.append(args[0].reshape(-1, OBS).shape[0]))
+    return rows
+
+
+def test_a_chained_batch_evaluates_each_state_once_with_torchrls_values_bit_for_bit():
+    critic = make_critic()
+    batch = make_chained_batch()
+    rows = count_rows(critic)
+    out = WeightedMultiGAE(NAMES, gamma=0.97, lmbda=0.9, value_network=critic)(batch.clone())
+    ended = batch["next", "done"][..., 0]
+    apart = int(ended[:, :-1].sum()) + B  # the next states no step t + 1 gives: episode ends and each row's last
+    padding = -(B * T + apart) % GEMM_ROW_BLOCK  # whole blocks of the matrix kernels' rows
+    assert rows == [B * T + apart + padding] and sum(rows) < 2 * B * T
+    for k, name in enumerate(NAMES):  # TorchRL's GAE on head k, with its own pass over both halves of the batch
+        head_k = TensorDictModule(lambda obs, k=k: critic.module(obs)[..., k : k + 1], ["observation"], ["state_value"])
+        oracle = GAE(gamma=0.97, lmbda=0.9, value_network=head_k)
+        oracle.set_keys(reward=("reward", name))
+        expected = oracle(batch.clone())
+        assert torch.equal(out["state_value"][..., k : k + 1], expected["state_value"])
+        assert torch.equal(out["next", "state_value"][..., k : k + 1], expected["next", "state_value"])
+        torch.testing.assert_close(out["advantage_components"][..., k : k + 1], expected["advantage"])
+
+
+def test_a_batch_that_does_not_chain_gets_each_next_state_evaluated():
+    critic = make_critic()
+    batch = make_batch()  # next states unrelated to the following states: V(s_{t+1}) must not stand in for V(s'_t)
+    out = WeightedMultiGAE(NAMES, gamma=0.97, lmbda=0.9, value_network=critic)(batch.clone())
+    with torch.no_grad():
+        torch.testing.assert_close(out["next", "state_value"], critic.module(batch["next", "observation"]))
+        assert not torch.allclose(out["next", "state_value"][:, :-1], critic.module(batch["observation"])[:, 1:])

@@ -23,6 +23,9 @@ from torchrl_ahrs.value.functional import (
 
 COMPONENT_SCALES = ("raw", "standardize", "value_norm")
 MIXES = ("sum", "anchored")  # Σ_k w_k A_k (the paper's), or around the summed reward's own advantage (ppo.mix)
+# rows per block of the CPU's matrix kernels (oneDNN/MKL sgemm on x86 with AVX2/AVX-512): the state-value pass
+# pads its input to whole blocks (WeightedMultiGAE._call_value_nets)
+GEMM_ROW_BLOCK = 8
 ANCHOR = "anchor"  # the name of the anchored mix's extra column (the summed reward), in `columns` and share/<c>
 
 
@@ -257,6 +260,77 @@ class WeightedMultiGAE(GAE):
         else:  # a fresh normaliser (all buffers zero) would give its epsilon floor
             scale = targets.reshape(-1, targets.shape[-1]).std(0, unbiased=False)  # sigma_k = std over the batch
         return scale_by(advantages, scale)  # A_k / sigma_k
+
+    def _call_value_nets(
+        self,
+        data: TensorDictBase,
+        params: TensorDictBase | None,
+        next_params: TensorDictBase | None,
+        single_call: bool,
+        value_key: NestedKey,
+        detach_next: bool,
+        vmap_randomness: str = "error",
+        *,
+        value_net: TensorDictModule | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """``V(s_t)`` and ``V(s'_t)`` ``[*B, T, C]``, evaluating each distinct state once when the batch chains.
+
+        In a collector's batch the next state of step ``t`` *is* the state of step ``t + 1`` unless the episode
+        ended at ``t`` (the collector reset it). TorchRL's default pass evaluates the critic on both ``[*B, T]``
+        halves; here it runs once on the ``B T`` states plus the ``M`` next states nothing else gives (each row's
+        last step and every step that ended an episode), and ``V(s'_t) = V(s_{t+1})`` elsewhere: about half the
+        rows (Cassie 128 x 12: 1 536 + ~130 rows instead of 3 072). The critic is row-wise, so the values are the
+        two-call pass's (tests/value/test_gae.py compares them bit for bit). The shortcut is taken only after
+        checking that the batch chains (``s'_t == s_{t+1}`` wherever no episode ended); otherwise, and for what it
+        does not cover (functional ``params``, TorchRL's ``shifted`` / chunked options, recurrent ``is_init``,
+        time not the last batch dimension), TorchRL's own pass runs.
+        """
+        net = self.value_network if value_net is None else value_net
+        time_dim = self._get_time_dim(None, data)
+        chained = (
+            params is None
+            and next_params is None
+            and not single_call
+            and self.value_chunk_size is None
+            and self.num_chunks is None
+            and time_dim == data.ndim - 1
+            and data.shape[-1] > 1
+            and "is_init" not in data.keys()
+        )
+        in_keys = list(net.in_keys)
+        states = data.select(*in_keys, strict=False)
+        next_states = data.get("next").select(*in_keys, strict=False)
+        ended = data.get(("next", self.tensor_keys.done)).squeeze(-1)  # [*B, T]: the collector reset after these
+        if chained:
+            chained = len(states.keys(True, True)) == len(in_keys) == len(next_states.keys(True, True))
+        if chained:  # s'_t == s_{t+1} wherever the episode went on: then only the other next states need the critic
+            went_on = ~ended[..., :-1]  # [*B, T - 1]
+            chained = all(
+                torch.equal(next_states.get(key)[..., :-1, :][went_on], states.get(key)[..., 1:, :][went_on])
+                for key in in_keys
+            )
+        if not chained:
+            return super()._call_value_nets(
+                data, params, next_params, single_call, value_key, detach_next, vmap_randomness, value_net=value_net
+            )
+        evaluated_apart = ended.clone()  # [*B, T]: the next states to evaluate, each row's last step included
+        evaluated_apart[..., -1] = True
+        count = states.numel()
+        apart = int(evaluated_apart.sum())  # M
+        inputs = torch.cat([states.reshape(-1), next_states[evaluated_apart]], 0)  # [B T + M]
+        # padded to whole blocks of GEMM_ROW_BLOCK rows: the matrix kernels sum a partial last block in another
+        # order, and whole blocks make every value bit for bit the two-call pass's, so runs reproduce earlier ones
+        padding = -inputs.shape[0] % GEMM_ROW_BLOCK
+        if padding:
+            inputs = torch.cat([inputs, inputs[:padding]], 0)
+        values = net(inputs).get(value_key)  # [B T + M (+ padding), C]
+        value = values[:count].reshape(*data.shape, -1)  # V(s_t) [*B, T, C]
+        next_value = torch.empty_like(value)
+        next_value[..., :-1, :] = value[..., 1:, :]  # V(s'_t) = V(s_{t+1}) where the episode went on
+        next_value[evaluated_apart] = values[count : count + apart]  # and evaluated where it ended or the window does
+        data.set(value_key, value)
+        data.set(("next", value_key), next_value)
+        return value, next_value.detach() if detach_next else next_value, None
 
     def _prepare_signals(self, reward, done, terminated, value):
         rewards = stack_components([reward.get(name) for name in self.components])  # [*B, T, K]
