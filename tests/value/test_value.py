@@ -169,7 +169,6 @@ def test_the_anchored_mix_refuses_a_component_named_like_its_column_and_a_critic
 def make_chained_batch(seed=0, end_rate=0.08):
     """A batch laid out as a collector delivers it: the next state of step t is the state of step t + 1
     unless the episode ended at t, where the next state is the final one and step t + 1 starts afresh."""
-    gen = torch.Generator().manual_seed(seed)
     batch = make_batch(seed, end_rate)
     ended = batch["next", "done"][..., 0]
     states = batch["observation"].clone()

@@ -280,10 +280,11 @@ class WeightedMultiGAE(GAE):
         halves; here it runs once on the ``B T`` states plus the ``M`` next states nothing else gives (each row's
         last step and every step that ended an episode), and ``V(s'_t) = V(s_{t+1})`` elsewhere: about half the
         rows (Cassie 128 x 12: 1 536 + ~130 rows instead of 3 072). The critic is row-wise, so the values are the
-        two-call pass's (tests/value/test_gae.py compares them bit for bit). The shortcut is taken only after
+        two-call pass's (tests/value/test_value.py compares them bit for bit). The shortcut is taken only after
         checking that the batch chains (``s'_t == s_{t+1}`` wherever no episode ended); otherwise, and for what it
         does not cover (functional ``params``, TorchRL's ``shifted`` / chunked options, recurrent ``is_init``,
-        time not the last batch dimension), TorchRL's own pass runs.
+        time not the last batch dimension), TorchRL's own pass runs. This overrides TorchRL's (private) value
+        pass of torchrl 0.14, which ``GAE.forward`` calls; the tests above fail if that call goes elsewhere.
         """
         net = self.value_network if value_net is None else value_net
         time_dim = self._get_time_dim(None, data)
@@ -305,10 +306,8 @@ class WeightedMultiGAE(GAE):
             chained = len(states.keys(True, True)) == len(in_keys) == len(next_states.keys(True, True))
         if chained:  # s'_t == s_{t+1} wherever the episode went on: then only the other next states need the critic
             went_on = ~ended[..., :-1]  # [*B, T - 1]
-            chained = all(
-                torch.equal(next_states.get(key)[..., :-1, :][went_on], states.get(key)[..., 1:, :][went_on])
-                for key in in_keys
-            )
+            followers, successors = states[..., 1:][went_on], next_states[..., :-1][went_on]  # batch-dim indexing
+            chained = all(torch.equal(successors.get(key), followers.get(key)) for key in in_keys)
         if not chained:
             return super()._call_value_nets(
                 data, params, next_params, single_call, value_key, detach_next, vmap_randomness, value_net=value_net
