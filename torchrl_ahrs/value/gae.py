@@ -23,8 +23,9 @@ from torchrl_ahrs.value.functional import (
 
 COMPONENT_SCALES = ("raw", "standardize", "value_norm")
 MIXES = ("sum", "anchored")  # Σ_k w_k A_k (the paper's), or around the summed reward's own advantage (ppo.mix)
-# rows per block of the CPU's matrix kernels (oneDNN/MKL sgemm on x86 with AVX2/AVX-512): the state-value pass
-# pads its input to whole blocks (WeightedMultiGAE._call_value_nets)
+# rows per block of the CPU's matrix kernels, as measured on x86 (a partial last block is summed in another order):
+# the state-value pass pads its input to whole blocks (WeightedMultiGAE._call_value_nets); the values are right
+# either way, the padding only keeps them bit for bit those of the two-call pass
 GEMM_ROW_BLOCK = 8
 ANCHOR = "anchor"  # the name of the anchored mix's extra column (the summed reward), in `columns` and share/<c>
 
@@ -284,7 +285,7 @@ class WeightedMultiGAE(GAE):
         checking that the batch chains (``s'_t == s_{t+1}`` wherever no episode ended); otherwise, and for what it
         does not cover (functional ``params``, TorchRL's ``shifted`` / chunked options, recurrent ``is_init``,
         time not the last batch dimension), TorchRL's own pass runs. This overrides TorchRL's (private) value
-        pass of torchrl 0.14, which ``GAE.forward`` calls; the tests above fail if that call goes elsewhere.
+        pass of torchrl 0.14, which ``GAE.forward`` calls; tests/value/test_value.py fails if that call goes elsewhere.
         """
         net = self.value_network if value_net is None else value_net
         time_dim = self._get_time_dim(None, data)
