@@ -284,7 +284,8 @@ class WeightedMultiGAE(GAE):
         two-call pass's (tests/value/test_value.py compares them bit for bit). The shortcut is taken only after
         checking that the batch chains (``s'_t == s_{t+1}`` wherever no episode ended); otherwise, and for what it
         does not cover (functional ``params``, TorchRL's ``shifted`` / chunked options, recurrent ``is_init``,
-        time not the last batch dimension), TorchRL's own pass runs. This overrides TorchRL's (private) value
+        time not the last batch dimension), TorchRL's own pass runs. (TorchRL's ``shifted=True`` also calls the
+        critic once, but on a fixed budget of extra slots: a row with more resets than the budget loses samples.) This overrides TorchRL's (private) value
         pass of torchrl 0.14, which ``GAE.forward`` calls; tests/value/test_value.py fails if that call goes elsewhere.
         """
         net = self.value_network if value_net is None else value_net
@@ -296,7 +297,6 @@ class WeightedMultiGAE(GAE):
             and self.value_chunk_size is None
             and self.num_chunks is None
             and time_dim == data.ndim - 1
-            and data.shape[-1] > 1
             and "is_init" not in data.keys()
         )
         in_keys = list(net.in_keys)
