@@ -319,7 +319,7 @@ class WeightedMultiGAE(GAE):
         apart = int(evaluated_apart.sum())  # M
         inputs = torch.cat([states.reshape(-1), next_states[evaluated_apart]], 0)  # [B T + M]
         # padded to whole blocks of GEMM_ROW_BLOCK rows: the matrix kernels sum a partial last block in another
-        # order, and whole blocks make every value bit for bit the two-call pass's, so runs reproduce earlier ones
+        # order, and whole blocks made every value checked bit for bit the two-call pass's
         padding = -inputs.shape[0] % GEMM_ROW_BLOCK
         if padding:
             inputs = torch.cat([inputs, inputs[:padding]], 0)
