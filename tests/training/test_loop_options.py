@@ -187,3 +187,40 @@ def test_a_kl_target_with_every_optimiser_group_flagged_is_refused_in_one_line(t
     monkeypatch.setattr(iteration, "build_optimizer", all_flagged)
     with pytest.raises(ValueError, match="every group is flagged: leave the actor's group unflagged"):
         train(make_cfg(*TINY, "ppo.kl_target=0.01"), tmp_path / "run")
+
+
+def test_with_ppo_mirror_the_loss_sees_each_minibatch_followed_by_its_mirror_image(tmp_path, monkeypatch):
+    """Cassie (a task with a mirror): every loss call gets 2 x the minibatch, its second half the first's image."""
+    from torchrl_ahrs.app.shared.settings import task_settings
+    from torchrl_ahrs.envs.registry import task_mirror
+    from torchrl_ahrs.training.loss import HybridClipPPOLoss
+
+    seen = []
+    forward = HybridClipPPOLoss.forward
+
+    def recorded(self, tensordict):
+        seen.append(tensordict.select("observation", "action", "advantage").clone())
+        return forward(self, tensordict)
+
+    monkeypatch.setattr(HybridClipPPOLoss, "forward", recorded)
+    cfg = make_cfg(
+        "task=cassie", "method=ppo", "ppo.mirror=true", "trainer.num_envs=4", "trainer.frames_per_batch=32",
+        "trainer.mini_batch_size=16", "trainer.num_epochs=2", "trainer.total_frames=64", "model.hidden_sizes=[16]",
+        "trainer.progress_bar=false", "logger.backends=[csv]",
+    )  # fmt: skip
+    train(cfg, tmp_path / "run")
+    maps = task_mirror(task_settings(cfg.task))
+    assert len(seen) == 2 * 2 * 2  # 2 iterations x 2 epochs x 2 minibatches
+    for minibatch in seen:
+        first, second = minibatch[:16], minibatch[16:]
+        assert minibatch.batch_size == torch.Size([32])
+        assert torch.equal(second["observation"], maps["observation"](first["observation"]))
+        assert torch.equal(second["action"], maps["action"](first["action"]))
+        assert torch.equal(second["advantage"], first["advantage"])
+
+
+def test_ppo_mirror_on_a_task_without_a_mirror_or_not_a_bool_is_refused_in_one_line(tmp_path):
+    with pytest.raises(ConfigError, match="ppo.mirror=true: task 'point_reach' defines no left-right mirror"):
+        train(make_cfg(*TINY, "ppo.mirror=true"), tmp_path / "run")
+    with pytest.raises(ConfigError, match="ppo.mirror must be true or false, got 'yes'"):
+        train(make_cfg(*TINY, "ppo.mirror=yes"), tmp_path / "run2")

@@ -18,6 +18,7 @@ import torch
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from torchrl_ahrs.envs import settings as task_records
+from torchrl_ahrs.envs.common.mirror import SignedPermutation
 from torchrl_ahrs.envs.common.snapshot import BaseEnvSnapshot
 from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.rewards.auxiliary import AUX, TOTAL_AUX
@@ -45,6 +46,9 @@ _BUILDERS: dict[str, str] = {
 # task.backend=mjx: the same tasks stepped by MJX on JAX (the [mjx] extra); task.backend=cpu uses _BUILDERS
 _MJX_BUILDERS = dict.fromkeys(("ant", "cassie", "quadcopter"), "torchrl_ahrs.envs.tasks.mjx_tasks:make_mjx_task")
 BACKENDS = ("cpu", "mjx")
+# name -> "module:function" giving the task's left-right mirror maps, {"observation": ..., "action": ...}
+# (SignedPermutation, envs/common/mirror.py), for ppo.mirror; a task absent here has none
+_MIRRORS: dict[str, str] = {"cassie": "torchrl_ahrs.envs.tasks.cassie:cassie_mirror"}
 # name -> the settings record its builder reads (torchrl_ahrs.envs.settings); the same for both backends
 _SETTINGS: dict[str, type[TaskSettings]] = {
     "ant_v5": task_records.AntV5Settings,
@@ -117,6 +121,17 @@ def get_builder(name: str, backend: str = "cpu") -> TaskBuilder:
         module_name, function_name = builder.split(":")
         builder = getattr(importlib.import_module(module_name), function_name)
     return builder
+
+
+def task_mirror(task: TaskSettings) -> dict[str, SignedPermutation]:
+    """Task ``task.name``'s mirror maps ``{"observation": SignedPermutation, "action": SignedPermutation}``
+    (the same for both backends: they share the observation's layout). A task without one, or settings its map
+    does not hold for, raise ``ValueError`` with a one-line reason."""
+    if task.name not in _MIRRORS:
+        having = ", ".join(sorted(_MIRRORS))
+        raise ValueError(f"task {task.name!r} defines no left-right mirror (tasks with one: {having})")
+    module_name, function_name = _MIRRORS[task.name].split(":")
+    return getattr(importlib.import_module(module_name), function_name)(task)
 
 
 def make_env(

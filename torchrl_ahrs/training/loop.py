@@ -109,6 +109,8 @@ def learn(run: TrainingRun) -> dict[str, float]:
                 logged = epoch == settings.num_epochs - 1
                 for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator):
                     progress.optim_steps += 1
+                    if run.augment is not None:  # ppo.mirror: the minibatch, then its mirror image (same reward)
+                        minibatch = run.augment(minibatch)
                     losses = loss_forward(minibatch)
                     # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
                     # collecting to the current policy

@@ -98,6 +98,8 @@ class TrainingRun:
         observation_norms: ``(normaliser, observation key)`` pairs updated after each update.
         value_norm: the critic heads' TorchRL ``ValueNorm`` (``ppo.value_norm``): the loss regresses value targets
             standardised with it (:mod:`~torchrl_ahrs.training.value_norm`), GAE reads the critic in reward units.
+        augment: applied to each minibatch before the loss, ``[B] -> [B']`` (``ppo.mirror``: the minibatch and
+            its mirror image, :class:`~torchrl_ahrs.training.symmetry.MirrorAugmentation`); ``None``: as drawn.
         after_iteration: called in this order as ``after(batch, metrics)`` once the iteration's scalars are
             logged (the app's: the console line, the video clip, the checkpoint, which is last so that it holds
             the state the next iteration starts from).
@@ -145,6 +147,7 @@ class TrainingRun:
     generator: torch.Generator = field(default_factory=lambda: torch.Generator().manual_seed(0))
     observation_norms: Sequence[tuple[RunningNorm, str]] = ()
     value_norm: Any = None
+    augment: Callable[[TensorDictBase], TensorDictBase] | None = None
     after_iteration: Sequence[Callable[[TensorDictBase, dict[str, float]], Any]] = ()
     after_failure: Callable[[], Any] | None = None
     progress: Progress = field(default_factory=Progress)

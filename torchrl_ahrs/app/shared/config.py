@@ -138,6 +138,8 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"ppo.advantage_pass must be one of {', '.join(ADVANTAGE_PASSES)}, got {ppo.advantage_pass!r}"
         )
+    if not isinstance(ppo.get("mirror", False), bool):
+        raise ConfigError(f"ppo.mirror must be true or false, got {ppo.mirror!r}")
     if not isinstance(trainer.get("compile", False), bool):
         raise ConfigError(f"trainer.compile must be true or false, got {trainer.compile!r}")
     components = resolve_components(cfg)

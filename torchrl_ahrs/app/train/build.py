@@ -26,12 +26,13 @@ from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.app.shared.settings import scheduler_settings, task_settings
 from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
-from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device
+from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device, task_mirror
 from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.symmetry import MirrorAugmentation
 from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
 
@@ -216,6 +217,26 @@ def build_optimizer(cfg: DictConfig, loss: torch.nn.Module, critic: torch.nn.Mod
             {"params": [param for param in params if id(param) in critic_ids], "kl_adaptive": False},
         ]
     return torch.optim.Adam(groups, lr=cfg.trainer.lr, eps=1e-5, fused=True)
+
+
+def build_mirror(
+    cfg: DictConfig, task: TaskSettings, loss: HybridClipPPOLoss, critic_key: str
+) -> MirrorAugmentation | None:
+    """``ppo.mirror=true``: the augmentation that follows each PPO minibatch with its mirror image, from the task's
+    maps (envs/registry.py ``task_mirror``); ``None`` otherwise. A task without a mirror, or a critic that reads an
+    observation the map does not cover, is a one-line ``ConfigError`` before anything trains."""
+    if not cfg.ppo.get("mirror", False):
+        return None
+    try:
+        maps = task_mirror(task)
+    except ValueError as error:
+        raise ConfigError(f"ppo.mirror=true: {error}") from None
+    if critic_key != "observation":
+        raise ConfigError(f"ppo.mirror=true: task {task.name!r} has no mirror for its critic's {critic_key!r}")
+    keys = loss.tensor_keys
+    return MirrorAugmentation.for_policy(
+        maps["observation"], maps["action"], action_key=keys.action, loc_key=keys.loc, scale_key=keys.scale
+    )
 
 
 @dataclass

@@ -26,6 +26,7 @@ from torchrl_ahrs.app.train.build import (
     build_checked_scheduler,
     build_collector,
     build_estimator_and_loss,
+    build_mirror,
     build_networks,
     build_optimizer,
     env_factory,
@@ -96,6 +97,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     networks = build_networks(cfg, make_envs, device=devices.learner)
     estimator, loss = build_estimator_and_loss(cfg, networks, components, devices.learner)
     optimizer = build_optimizer(cfg, loss, networks.critic)  # Adam; the critic's own group with ppo.kl_adapts=actor
+    augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)  # ppo.mirror: each minibatch + its image
 
     done_frames = int(resumed["state"]["collected_frames"]) if resumed else 0
     collector = build_collector(cfg, networks.actor, make_envs, devices.learner)
@@ -179,6 +181,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         generator=generator,
         observation_norms=norms,
         value_norm=getattr(estimator, "value_norm", None),
+        augment=augment,
         # after each iteration, in this order; the checkpoint last, so it holds the state the next one starts from
         after_iteration=[after for after in (console, video, checkpoint) if after is not None],
         after_failure=checkpoint.save_after_failure,  # an auxiliary reward's failure: keep what was learnt so far

@@ -48,10 +48,14 @@ from torchrl.envs import EnvBase
 
 from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv, with_reward_components
 from torchrl_ahrs.envs.common import legged_rewards as lr
+from torchrl_ahrs.envs.common.mirror import SignedPermutation
 from torchrl_ahrs.envs.settings import CassieSettings
 from torchrl_ahrs.envs.tasks.cassie_model import LEG_JOINTS, CassieLayout, load_cassie_model
 
 OBS_SCALES = {"lin_vel": 2.0, "ang_vel": 0.25, "dof_pos": 1.0, "dof_vel": 0.05}
+# how each leg joint's angle mirrors about the sagittal (x-z) plane in the shipped model, whose right leg is the
+# left one reflected in y (assets/cassie.xml): rotations about x (roll) and z (yaw) change sign, about y do not
+MIRROR_JOINT_SIGNS = {"hip_roll": -1.0, "hip_yaw": -1.0, "hip_pitch": 1.0, "knee": 1.0, "toe": 1.0}
 
 
 class CassieEnv(BatchedMujocoEnv):
@@ -256,6 +260,25 @@ class CassieEnv(BatchedMujocoEnv):
             dim=-1,
         )
         return obs.clamp(-100.0, 100.0)  # legged_gym's clip_observations
+
+
+def cassie_mirror(task: CassieSettings) -> dict[str, SignedPermutation]:
+    """The left-right mirror of Cassie's observation [42] and action [10] (``ppo.mirror``; the task, its reward
+    and the shipped model are symmetric about the pelvis's x-z plane). Reflecting y: a velocity's y, an angular
+    velocity's x and z, the yaw command flip; the legs swap, their roll and yaw angles flip.
+
+    Raises ``ValueError`` for another model (``task.model_path``): its joint conventions are not this map's."""
+    if task.model_path:
+        raise ValueError(f"the Cassie mirror map is derived for the shipped model, not {task.model_path}")
+    legs = len(LEG_JOINTS)
+    joint_signs = tuple(MIRROR_JOINT_SIGNS[name] for name in LEG_JOINTS) * 2
+    joints = SignedPermutation((*range(legs, 2 * legs), *range(legs)), joint_signs)  # l <-> r, in JOINT_NAMES order
+    polar = SignedPermutation((0, 1, 2), (1.0, -1.0, 1.0))  # a vector: (x, -y, z)
+    axial = SignedPermutation((0, 1, 2), (-1.0, 1.0, -1.0))  # an angular velocity (pseudovector): (-x, y, -z)
+    command = SignedPermutation((0, 1, 2), (1.0, -1.0, -1.0))  # (v_x, -v_y, -ω_yaw)
+    # the blocks of CassieEnv.observation, in order: v, ω, gravity, command, q - q0, q̇, last action
+    observation = SignedPermutation.concat([polar, axial, polar, command, joints, joints, joints])
+    return {"observation": observation, "action": joints}
 
 
 def _per_joint(values: Mapping[str, float] | Any) -> list[float]:
