@@ -10,6 +10,7 @@ from conftest import make_cfg
 
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.train.build import build_networks, env_factory
 from torchrl_ahrs.app.train.iteration import train
 from torchrl_ahrs.app.train.runs import read_scalar
 from torchrl_ahrs.training.run import LoopSettings
@@ -224,3 +225,32 @@ def test_ppo_mirror_on_a_task_without_a_mirror_or_not_a_bool_is_refused_in_one_l
         train(make_cfg(*TINY, "ppo.mirror=true"), tmp_path / "run")
     with pytest.raises(ConfigError, match="ppo.mirror must be true or false, got 'yes'"):
         train(make_cfg(*TINY, "ppo.mirror=yes"), tmp_path / "run2")
+
+
+@pytest.mark.parametrize("observation_norm", ["running", "none"])
+def test_observation_norm_none_keeps_the_normaliser_the_identity_and_running_counts_every_frame(
+    tmp_path, observation_norm
+):
+    """Oracles: ``running`` has merged every collected frame once (FRAMES x ITERATIONS); ``none`` was never
+    updated, and the policy rebuilt from its checkpoint returns any observation unchanged, far outside running's
+    clip."""
+    run, checkpoint = run_once(tmp_path, observation_norm, f"model.observation_norm={observation_norm}")
+    cfg = make_cfg(*TINY, f"model.observation_norm={observation_norm}")
+    networks = build_networks(cfg, env_factory(cfg), with_critic=False)
+    networks.actor.load_state_dict(checkpoint["actor"])
+    norm_state = networks.actor_norm.state_dict()
+    if observation_norm == "running":
+        assert norm_state["count"].item() == FRAMES * ITERATIONS
+        assert not torch.equal(norm_state["mean"], torch.zeros_like(norm_state["mean"]))
+        return
+    assert norm_state["count"].item() == 0
+    torch.testing.assert_close(norm_state["mean"], torch.zeros_like(norm_state["mean"]))
+    torch.testing.assert_close(norm_state["var"], torch.ones_like(norm_state["var"]))
+    far = torch.linspace(-1e3, 1e3, networks.actor_norm.mean.shape[0]).unsqueeze(0)  # [1, obs_dim], |x| up to 1e3
+    torch.testing.assert_close(networks.actor_norm(far), far)
+
+
+def test_an_unknown_observation_norm_is_refused_in_one_line(tmp_path):
+    with pytest.raises(ConfigError, match="model.observation_norm must be one of running, none, got 'fixed'"):
+        train(make_cfg(*TINY, "model.observation_norm=fixed"), tmp_path / "refused")
+    assert not (tmp_path / "refused" / "checkpoint.pt").exists()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -58,6 +59,22 @@ class RunningNorm(nn.Module):
 
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
+OBSERVATION_NORMS = ("running", "none")
+
+
+def make_observation_norm(size: int, kind: str = "running") -> RunningNorm:
+    """The observation normaliser ``model.observation_norm`` names: ``running`` standardises with running
+    statistics clipped to ±10; ``none`` passes the observation through as the task scales it (legged_gym's fixed
+    ``obs_scales``) — a :class:`RunningNorm` without a clip that the loop never updates, so it stays the identity
+    while checkpoints, export and deployment keep one layout.
+
+    Example:
+        >>> make_observation_norm(2, "none")(torch.tensor([[30.0, -40.0]]))
+        tensor([[ 30., -40.]])
+    """
+    if kind not in OBSERVATION_NORMS:
+        raise ValueError(f"observation_norm must be one of {', '.join(OBSERVATION_NORMS)}, got {kind!r}")
+    return RunningNorm(size) if kind == "running" else RunningNorm(size, clip=math.inf)
 
 
 def build_actor(

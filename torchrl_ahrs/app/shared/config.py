@@ -15,7 +15,7 @@ from torchrl_ahrs.app.shared.redaction import is_secret_key
 from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
-from torchrl_ahrs.training.models import DISTRIBUTIONS
+from torchrl_ahrs.training.models import DISTRIBUTIONS, OBSERVATION_NORMS
 from torchrl_ahrs.training.run import ADVANTAGE_PASSES, KL_ADAPTS
 from torchrl_ahrs.value.gae import MIXES
 
@@ -117,6 +117,10 @@ def validate_config(cfg: DictConfig) -> None:
     if cfg.model.get("distribution", "tanh_normal") not in DISTRIBUTIONS:
         raise ConfigError(
             f"model.distribution must be one of {', '.join(DISTRIBUTIONS)}, got {cfg.model.distribution!r}"
+        )
+    if cfg.model.get("observation_norm", "running") not in OBSERVATION_NORMS:
+        raise ConfigError(
+            f"model.observation_norm must be one of {', '.join(OBSERVATION_NORMS)}, got {cfg.model.observation_norm!r}"
         )
     ppo = cfg.ppo
     if ppo.get("value_norm") not in (None, False, True, "running", "popart"):

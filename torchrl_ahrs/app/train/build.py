@@ -31,7 +31,7 @@ from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
-from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
+from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic, make_observation_norm
 from torchrl_ahrs.training.symmetry import MirrorAugmentation
 from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
@@ -126,8 +126,9 @@ def build_networks(
     finally:
         probe.close()
     model = cfg.model
-    actor_norm = RunningNorm(obs_dim)
-    critic_norm = actor_norm if critic_key == "observation" else RunningNorm(critic_obs_dim)
+    norm_kind = model.get("observation_norm", "running")
+    actor_norm = make_observation_norm(obs_dim, norm_kind)
+    critic_norm = actor_norm if critic_key == "observation" else make_observation_norm(critic_obs_dim, norm_kind)
     actor = build_actor(
         actor_norm,
         obs_dim,

@@ -123,6 +123,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     norms = [(networks.actor_norm, "observation")]
     if networks.critic_norm is not networks.actor_norm:  # privileged critic observations have their own statistics
         norms.append((networks.critic_norm, networks.critic_key))
+    if cfg.model.get("observation_norm", "running") == "none":  # the normalisers stay the identity
+        norms = []
     progress = Progress()
     settings = LoopSettings(
         total_frames=cfg.trainer.total_frames,
