@@ -63,6 +63,13 @@ def test_evaluation_reproduces_the_logged_component_structure(trained_run):
     components_sum = np.sum([per_episode[name] for name in ("distance", "arrival", "ctrl")], axis=0)
     np.testing.assert_allclose(components_sum, per_episode["total"], rtol=1e-4, atol=1e-3)
     assert summary["per_episode"]["length"] == [POINT_REACH_EPISODE_STEPS] * 4
+    # per episode too: the distance return is -(steps x that episode's mean distance)
+    np.testing.assert_allclose(
+        per_episode["distance"],
+        -POINT_REACH_EPISODE_STEPS * np.asarray(summary["per_episode"]["metrics"]["distance"]),
+        rtol=1e-4,
+        atol=1e-4,
+    )
     # the distance component pays -d every step, so its return is -(steps x mean distance metric)
     np.testing.assert_allclose(
         summary["return"]["distance"]["mean"],

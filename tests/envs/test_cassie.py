@@ -23,6 +23,7 @@ from torchrl_ahrs.envs.tasks.cassie_model import (
     default_model_path,
     load_cassie_model,
 )
+from torchrl_ahrs.evaluation.task_metrics import step_probe
 
 MENAGERIE_SCENE = Path("/work/shared/models/agility_cassie/scene.xml")
 needs_menagerie = pytest.mark.skipif(not MENAGERIE_SCENE.exists(), reason="Menagerie's Cassie is not on this machine")
@@ -203,6 +204,18 @@ def test_observation_at_rest_hand_values():
     torch.testing.assert_close(obs[:, 6:9], torch.tensor([[0.0, 0.0, -1.0]] * 2, dtype=torch.float64))  # level
     torch.testing.assert_close(obs[0, 9:12], torch.tensor([1.0, -2.0, 0.2], dtype=torch.float64))  # × (2, 2, 0.25)
     torch.testing.assert_close(obs[:, 12:], torch.zeros(2, 30, dtype=torch.float64))  # home pose, still, no action
+
+
+def test_evaluation_probe_at_rest_hand_values():
+    """At rest the tracking errors are the commands' own sizes: ‖(0.6, -0.8)‖ = 1.0 m/s and |0.8| rad/s."""
+    env = make_cassie(cassie_cfg("init_base_vel_noise=0.0", "init_joint_noise=0.0"), num_envs=2, seed=3).base_env
+    env.commands[:] = torch.tensor([[0.6, -0.8, -0.8], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    metrics = step_probe("cassie")(env)
+    expected = torch.tensor([1.0, 0.0], dtype=torch.float64)
+    torch.testing.assert_close(metrics["command_speed"], expected)
+    torch.testing.assert_close(metrics["lin_vel_error"], expected, atol=1e-9, rtol=0)
+    torch.testing.assert_close(metrics["command_turn"], torch.tensor([0.8, 0.0], dtype=torch.float64))
+    torch.testing.assert_close(metrics["ang_vel_error"], metrics["command_turn"], atol=1e-9, rtol=0)
 
 
 def test_termination_term_is_minus_four_when_below_height():

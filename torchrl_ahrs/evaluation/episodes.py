@@ -128,7 +128,8 @@ def record_frames(
 
 
 def summarize(results: EpisodeResults, extra_metrics: dict[str, float] | None = None) -> dict:
-    """JSON-ready summary: mean ± std of every return, lengths and metrics, plus the raw episode values."""
+    """JSON-ready summary: mean ± std of every return, lengths and metrics, plus the raw episode values of each
+    (``per_episode``: which episode fell, and under what, is read there)."""
 
     def stats(values: torch.Tensor) -> dict[str, float]:
         values = values.double()
@@ -143,5 +144,6 @@ def summarize(results: EpisodeResults, extra_metrics: dict[str, float] | None = 
         "per_episode": {
             "return": {name: values.tolist() for name, values in results.returns.items()},
             "length": results.lengths.tolist(),
+            "metrics": {name: values.tolist() for name, values in results.metrics.items()},
         },
     }

@@ -5,7 +5,9 @@ A probe reads the base environment right after a step (before any reset) and ret
 over an episode's steps and also keeps its value at the episode's last step (``<metric>_final``).
 
 =============  =====================================================================================
-cassie         ``lin_vel_error`` ‖cmd_xy − v_xy‖ (m/s, base frame), ``ang_vel_error`` |cmd_yaw − ω_z| (rad/s)
+cassie         ``lin_vel_error`` ‖cmd_xy − v_xy‖ (m/s, base frame), ``ang_vel_error`` |cmd_yaw − ω_z| (rad/s);
+               ``command_speed`` ‖cmd_xy‖ and ``command_turn`` |cmd_yaw|, whose ``_final`` value per episode
+               says what was commanded when an episode ended early
 point_reach    ``distance`` ‖p* − p‖ to the target (m)
 quadcopter     ``distance`` ‖p* − p‖ to the hover point (m)
 bimanual       ``success`` 1 while Bi-DexHands' success test holds (scissors opened by 0.29 rad, cap risen
@@ -28,11 +30,14 @@ StepProbe = Callable[[EnvBase], dict[str, torch.Tensor]]
 
 
 def cassie_tracking_errors(env) -> dict[str, torch.Tensor]:
-    """Velocity-command tracking errors ``[N]`` of a :class:`~torchrl_ahrs.envs.tasks.cassie.CassieEnv`."""
+    """Velocity-command tracking errors ``[N]`` of a :class:`~torchrl_ahrs.envs.tasks.cassie.CassieEnv`, and the
+    command's size ``[N]`` (read at a fall, it says which commands the policy falls under)."""
     lin_vel, ang_vel = env._base_velocities()  # base-frame [N, 3] each, the same read-out the reward uses
     return {
         "lin_vel_error": torch.linalg.vector_norm(env.commands[:, :2] - lin_vel[:, :2], dim=-1),  # ‖c_xy − v_xy‖
         "ang_vel_error": (env.commands[:, 2] - ang_vel[:, 2]).abs(),  # |c_yaw − ω_z|
+        "command_speed": torch.linalg.vector_norm(env.commands[:, :2], dim=-1),  # ‖c_xy‖
+        "command_turn": env.commands[:, 2].abs(),  # |c_yaw|
     }
 
 
