@@ -89,6 +89,27 @@ def test_mean_action_is_reproducible_and_sampling_is_not_the_mean(trained_run):
 
 
 @pytest.mark.slow
+def test_task_overrides_change_the_evaluated_task_only(trained_run):
+    config_before = (trained_run / "config.yaml").read_text()
+    shortened = evaluate(trained_run, episodes=2, seed=5, output=None, task_overrides={"max_episode_steps": 40})
+    assert shortened["per_episode"]["length"] == [40, 40]  # point_reach never ends early: the limit is the length
+    assert shortened["task_overrides"] == {"max_episode_steps": 40}
+    assert (trained_run / "config.yaml").read_text() == config_before  # the run keeps its own task
+    as_trained = evaluate(trained_run, episodes=2, seed=5, output=None)
+    assert as_trained["per_episode"]["length"] == [POINT_REACH_EPISODE_STEPS] * 2
+    assert as_trained["task_overrides"] == {}
+    with pytest.raises(EvaluationError, match=r"^task.max_steps is not a setting of task 'point_reach'$"):
+        load_policy(trained_run, {"max_steps": 40})
+
+    result = run_cli(f"run={trained_run}", "episodes=2", "output=", "+task.max_episode_steps=30")
+    assert result.returncode == 0, result.stderr
+    assert "length 30.0 ± 0.0" in result.stdout
+    assert 'task changed for this evaluation: {"max_episode_steps": 30}' in result.stdout
+    code, stderr = run_main(f"run={trained_run}", "output=", "+task.arrival_radus=0.2")
+    assert code == 2 and stderr.strip() == "error: task.arrival_radus is not a setting of task 'point_reach'"
+
+
+@pytest.mark.slow
 def test_rendered_clip_has_the_requested_frames_and_is_not_blank(trained_run):
     frames, fps = 12, 50  # point_reach control dt is 0.02 s: real-time playback at 50 frames/s
     result = run_cli(

@@ -19,8 +19,9 @@ Importing this module imports ``mujoco``: a process that renders calls
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -41,9 +42,12 @@ def evaluate(
     deterministic: bool = True,
     seed: int = 12345,
     output: str | None = EVALUATION,
+    task_overrides: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Evaluates the run's policy on ``episodes`` episodes; returns (and writes to ``run_dir/output``)
     the summary. Reported components: the run's K components, the task's other components, ``total``.
+    ``task_overrides`` changes settings of the run's task for this evaluation (:func:`load_policy`); the
+    summary records them under ``task_overrides``.
 
     Example:
         >>> evaluate("/nonexistent")
@@ -53,7 +57,7 @@ def evaluate(
     """
     if episodes < 1:
         raise EvaluationError(f"episodes must be a positive integer, got {episodes}")
-    policy = load_policy(run_dir)
+    policy = load_policy(run_dir, task_overrides)
     reported = _reported_components(policy.components, list(policy.task.components))
     env = make_env(policy.task, episodes, seed, components=reported, transforms=policy.make_envs.transforms)
     try:
@@ -67,6 +71,7 @@ def evaluate(
         "components": policy.components,
         "deterministic": deterministic,
         "seed": seed,
+        "task_overrides": dict(task_overrides or {}),
         **summarize(results, episode_metrics(results.returns, results.metrics)),
     }
     if output:
@@ -85,6 +90,7 @@ def render_clip(
     fps: float | None = None,
     deterministic: bool = True,
     seed: int = 12345,
+    task_overrides: Mapping[str, Any] | None = None,
 ) -> Path:
     """Renders environment 0 of a one-env copy of the task under the policy; returns the clip's path.
     ``video_format="auto"``: MP4 when imageio-ffmpeg is installed, else GIF (:func:`clip_format`).
@@ -97,7 +103,7 @@ def render_clip(
     if video_format not in ("auto", "gif", "mp4"):
         raise EvaluationError(f"video_format must be auto, gif or mp4, got {video_format!r}")
     video_format = clip_format(video_format)
-    policy = load_policy(run_dir)
+    policy = load_policy(run_dir, task_overrides)
     env = policy.make_envs(1, seed)
     try:
         frame_source = make_frame_source(env, width, height)
@@ -127,6 +133,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"{summary['episodes']} episodes (length {length['mean']:.1f} ± {length['std']:.1f}, "
         f"{'mean action' if summary['deterministic'] else 'sampled actions'})"
     ]
+    if summary.get("task_overrides"):
+        lines.append(f"  task changed for this evaluation: {json.dumps(summary['task_overrides'])}")
     width = max(len(name) for name in returns)
     lines += [
         f"  {name:<{width}}  {stats['mean']:.4f} ± {stats['std']:.4f}"
@@ -143,7 +151,10 @@ def run(cfg: DictConfig) -> int:
     """The command (``conf/evaluate.yaml``): evaluate, print the table, optionally render a clip."""
     if OmegaConf.is_missing(cfg, "run"):
         raise EvaluationError("give the training run directory: python -m torchrl_ahrs.evaluate run=<run dir>")
-    summary = evaluate(cfg.run, cfg.episodes, cfg.deterministic, cfg.seed, cfg.output)
+    # a mapping: conf/evaluate.yaml declares task as one, and overrides only add keys under it
+    task = cfg.get("task")
+    task_overrides = cast(dict[str, Any], OmegaConf.to_container(task, resolve=True)) if task else {}
+    summary = evaluate(cfg.run, cfg.episodes, cfg.deterministic, cfg.seed, cfg.output, task_overrides)
     print(format_summary(summary))
     if cfg.output:
         print(f"wrote {Path(cfg.run) / cfg.output}")
@@ -159,6 +170,7 @@ def run(cfg: DictConfig) -> int:
             cfg.video_fps,
             cfg.deterministic,
             cfg.seed,
+            task_overrides,
         )
         print(f"wrote {path} ({cfg.video_frames} frames)")
     return 0

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, cast
 
 import torch
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from torchrl.modules import ProbabilisticActor
 
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
@@ -35,13 +38,18 @@ class TrainedPolicy:
         return self.make_envs.task
 
 
-def load_policy(run_dir: str | Path) -> TrainedPolicy:
+def load_policy(run_dir: str | Path, task_overrides: Mapping[str, Any] | None = None) -> TrainedPolicy:
     """Rebuilds the actor of ``run_dir`` (network shapes from its config, weights and observation
     statistics from its checkpoint).
 
+    ``task_overrides`` (nested, like ``{"commands": {"resampling_time_s": 10.0}}``) replaces settings of the
+    run's task for this policy's environments only, the way legged_gym's ``play.py`` edits ``env_cfg``
+    before it plays a policy: a run trained on a changed task is then measured on the task as defined.
+    Each key must already be a setting of the run's task; the run directory is not changed.
+
     Raises:
-        EvaluationError: no such directory, no config, no or unreadable checkpoint, or weights that do
-            not fit the network the config describes.
+        EvaluationError: no such directory, no config, no or unreadable checkpoint, weights that do
+            not fit the network the config describes, or an override naming no setting of the task.
 
     Example:
         >>> load_policy("/nonexistent")
@@ -63,6 +71,8 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
     cfg = OmegaConf.load(config_path)
     if not isinstance(cfg, DictConfig):  # a YAML list would fail below with an unrelated message
         raise EvaluationError(f"{config_path} is not a run configuration (not a mapping)")
+    if task_overrides:
+        cfg.task = override_task(cfg.task, task_overrides)
     try:
         checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
     except Exception as error:  # torch raises many types for a damaged file
@@ -82,6 +92,28 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
         ) from error
     actor.eval()
     return TrainedPolicy(cfg, make_envs, actor)
+
+
+def override_task(task: DictConfig, overrides: Mapping[str, Any]) -> DictConfig:
+    """``task`` with ``overrides`` merged in; every overridden key must already be a setting of ``task``.
+
+    Example:
+        >>> from omegaconf import OmegaConf
+        >>> task = OmegaConf.create({"name": "cassie", "commands": {"resampling_time_s": 5.0}})
+        >>> override_task(task, {"commands": {"resampling_time_s": 10.0}}).commands.resampling_time_s
+        10.0
+        >>> override_task(task, {"commands": {"resampling_s": 10.0}})
+        Traceback (most recent call last):
+        ...
+        torchrl_ahrs.app.evaluate.policy.EvaluationError: task.commands.resampling_s is not a setting of task 'cassie'
+    """
+    base = OmegaConf.create(OmegaConf.to_container(task))  # a copy: the caller's config is not changed
+    OmegaConf.set_struct(base, True)  # struct: a misspelt key raises instead of adding a setting nothing reads
+    try:
+        return cast(DictConfig, OmegaConf.merge(base, OmegaConf.create(dict(overrides))))  # a mapping into a mapping
+    except OmegaConfBaseException as error:
+        key = getattr(error, "full_key", None) or _one_line(error)
+        raise EvaluationError(f"task.{key} is not a setting of task {task.get('name')!r}") from None
 
 
 def _one_line(error: BaseException) -> str:
