@@ -107,13 +107,15 @@ def override_task(task: DictConfig, overrides: Mapping[str, Any]) -> DictConfig:
         ...
         torchrl_ahrs.app.evaluate.policy.EvaluationError: task.commands.resampling_s is not a setting of task 'cassie'
     """
-    base = OmegaConf.create(OmegaConf.to_container(task))  # a copy: the caller's config is not changed
+    base = OmegaConf.create(OmegaConf.to_container(task, resolve=True))  # a copy: the caller's config is not changed
     OmegaConf.set_struct(base, True)  # struct: a misspelt key raises instead of adding a setting nothing reads
     try:
-        return cast(DictConfig, OmegaConf.merge(base, OmegaConf.create(dict(overrides))))  # a mapping into a mapping
+        merged = cast(DictConfig, OmegaConf.merge(base, OmegaConf.create(dict(overrides))))  # a mapping into a mapping
     except OmegaConfBaseException as error:
         key = getattr(error, "full_key", None) or _one_line(error)
         raise EvaluationError(f"task.{key} is not a setting of task {task.get('name')!r}") from None
+    OmegaConf.set_struct(merged, False)  # from here on the same open config as a task that was not overridden
+    return merged
 
 
 def _one_line(error: BaseException) -> str:
