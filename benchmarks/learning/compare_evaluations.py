@@ -12,7 +12,9 @@ script, not the shell, expands it and an arm that matches nothing is an error. P
   evaluated return), the episodes that lasted ``--full-length`` steps, and each ``--terms`` component's
   evaluated return (what the policy collects of it per episode);
 - per arm: the metric's mean with its 95 % stratified-bootstrap interval, the runs with a short episode ("fall"),
-  and, with ``--bar``, the runs whose metric is on the right side of the bar with every episode at full length;
+  with ``--bar``, the runs whose metric is on the right side of the bar with every episode at full length, and with
+  ``--stuck term=value``, the runs whose evaluated return of ``term`` is below ``value`` (Cassie's runs that turn on
+  the spot instead of walking collect 1-5 of ``tracking_lin_vel``'s 20 per episode, those that walk 12-18);
 - per pair of arms: P(a run of the first is better than one of the second) with its 95 % interval (rliable's
   probability of improvement, :func:`torchrl_ahrs.reporting.intervals.improvement_probability`; with
   ``--lower-is-better`` it is computed on the negated metric);
@@ -28,6 +30,7 @@ import argparse
 import glob
 import itertools
 import json
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,6 +95,18 @@ def parse_arm(text: str) -> tuple[str, list[Path]]:
     return name, sorted(runs)
 
 
+def parse_stuck(text: str) -> tuple[str, float]:
+    """``term=value`` -> the evaluated component and the return below which a run counts as stuck."""
+    term, _, value = text.partition("=")
+    try:
+        below = float(value)
+    except ValueError:
+        below = math.nan
+    if not term or math.isnan(below):
+        raise SystemExit(f"error: --stuck takes term=value, e.g. tracking_lin_vel=8, got {text!r}")
+    return term, below
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arm", action="append", required=True, help="name=glob[,glob...] of run dirs (repeat)")
@@ -101,7 +116,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--bar", type=float, default=None, help="the metric's target (with every episode full)")
     parser.add_argument("--terms", default="tracking_lin_vel,tracking_ang_vel", help="components to show, comma")
     parser.add_argument("--bin", type=int, default=500_000, help="frames of the last bin of the training total")
+    parser.add_argument("--stuck", default=None, help="term=value: count the runs whose term's return is below value")
     args = parser.parse_args(argv)
+    stuck_term, stuck_below = parse_stuck(args.stuck) if args.stuck is not None else (None, math.nan)
     arms = dict(parse_arm(text) for text in args.arm)
     evaluated = {name: [read_run(run, args.metric, args.bin) for run in runs] for name, runs in arms.items()}
     terms = [term for term in args.terms.split(",") if term]
@@ -126,6 +143,12 @@ def main(argv: list[str] | None = None) -> None:
         line = f"{name:<12} mean {point:.3f} [{low:.3f}, {high:.3f}] over {len(runs)} seeds; {falls} fall"
         if args.bar is not None:
             line += f"; {sum(meets(run) for run in runs)} meet the bar ({args.bar:g}, every episode full)"
+        if stuck_term is not None:
+            for run in runs:
+                if stuck_term not in run.returns:
+                    raise SystemExit(f"error: {run.run_dir} has no evaluated return {stuck_term!r} (--stuck)")
+            stuck = sum(run.returns[stuck_term] < stuck_below for run in runs)
+            line += f"; {stuck} stuck ({stuck_term} below {stuck_below:g})"
         print(line)
         point, low, high = mean_interval(np.array([run.final_total for run in runs]))
         print(f"{'':<12} training total, last bin: {point:.2f} [{low:.2f}, {high:.2f}]")

@@ -241,6 +241,7 @@ def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_i
     ]:  # fmt: skip
         write_evaluated_run(tmp_path / f"{arm}_s{seed}", seed, error, lengths, total)
     argv = ["--lower-is-better", "--bar", "0.35", "--terms", "tracking_lin_vel", "--bin", "1000"]
+    argv += ["--stuck", "tracking_lin_vel=15"]  # seed 1 of each arm collects 10 of it, seed 2 collects 20
     argv += ["--arm", f"a={tmp_path}/a_s1,{tmp_path}/a_s2", "--arm", f"b={tmp_path}/b_s*"]  # two globs, one glob
     out = run_script("learning/compare_evaluations.py", argv, monkeypatch, capsys)
     rows = [line.split() for line in out.splitlines() if line.startswith(("a ", "b ")) and "mean" not in line]
@@ -250,6 +251,7 @@ def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_i
     ]  # fmt: skip
     assert "a            mean 0.150 [" in out and "over 2 seeds; 0 fall; 2 meet the bar" in out
     assert "b            mean 0.400 [" in out and "over 2 seeds; 1 fall; 1 meet the bar" in out
+    assert out.count("; 1 stuck (tracking_lin_vel below 15)") == 2
     assert "training total, last bin: 1.50 [" in out and "training total, last bin: 3.50 [" in out
     assert "P(a better than b) = 1.00 [1.00, 1.00] in lin_vel_error, 0.00 [0.00, 0.00] in the training total" in out
 
@@ -257,3 +259,12 @@ def test_compare_evaluations_prints_seeds_arm_intervals_and_the_probability_of_i
 def test_compare_evaluations_refuses_an_arm_that_matches_nothing_in_one_line(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit, match=r"arm 'a': .* matches no directory"):
         run_script("learning/compare_evaluations.py", ["--arm", f"a={tmp_path},{tmp_path}/none_*"], monkeypatch, capsys)
+
+
+def test_compare_evaluations_refuses_a_malformed_or_unknown_stuck_term_in_one_line(tmp_path, monkeypatch, capsys):
+    write_evaluated_run(tmp_path / "a_s1", 1, 0.1, [1000], 0.001)
+    arm = ["--arm", f"a={tmp_path}/a_s1"]
+    with pytest.raises(SystemExit, match=r"--stuck takes term=value, .* got 'tracking_lin_vel'"):
+        run_script("learning/compare_evaluations.py", ["--stuck", "tracking_lin_vel", *arm], monkeypatch, capsys)
+    with pytest.raises(SystemExit, match=r"has no evaluated return 'no_such_term' \(--stuck\)"):
+        run_script("learning/compare_evaluations.py", ["--stuck", "no_such_term=8", *arm], monkeypatch, capsys)
