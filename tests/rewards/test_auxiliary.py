@@ -4,6 +4,7 @@ the three methods that use it, and the sandbox's command line on aux files. The 
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -81,6 +82,32 @@ def test_cassie_aux_pays_for_an_upright_pelvis():
     observation[1, 6:9] = torch.tensor([1.0, 0.0, 0.0])  # lying on its side
     aux = fn({"observation": observation})
     assert aux[0] > 0 and aux[1] == pytest.approx(0.0) and aux[0] <= 0.02 + 1e-6  # at most one dt-scaled unit
+
+
+PILOT_AUX = sorted((Path(__file__).parents[2] / "benchmarks" / "pilots" / "aux").glob("cassie_*.py"))
+
+
+@pytest.mark.parametrize("path", PILOT_AUX, ids=[path.stem for path in PILOT_AUX])
+def test_cassie_pilot_aux_pays_for_progress_along_the_command(path):
+    """Oracle: command 1 m/s along x (observed x 2); the progress term pays dt x the share of the commanded speed
+    achieved along it, clamped to [0, 1]: 0.02 at 1 m/s, 0.01 at 0.5 m/s, 0.02 at 1.5 m/s, 0 backwards or sideways,
+    0 without a planar command. The upright variant pays the same upright and nothing lying on its side."""
+    assert check_source(path.read_text(), str(path)).ok
+    fn = load_aux_function(path)
+    velocities = [[1.0, 0.0], [0.5, 0.0], [1.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.5, 0.0]]
+    commands = [[1.0, 0.0]] * 5 + [[0.0, 0.0]]
+    observation = torch.zeros(len(velocities), 42)
+    observation[:, 0:2] = 2.0 * torch.tensor(velocities)  # the observation scale of the base velocity
+    observation[:, 6:9] = torch.tensor([0.0, 0.0, -1.0])  # upright
+    observation[:, 9:11] = 2.0 * torch.tensor(commands)  # the observation scale of the planar command
+    expected = torch.tensor([0.02, 0.01, 0.02, 0.0, 0.0, 0.0])
+    torch.testing.assert_close(fn({"observation": observation}), expected)
+    inputs = collect_aux_inputs(task_dict("cassie"), num_envs=3, steps=4)  # 12 real transitions
+    aux = fn(inputs)
+    assert aux.shape == (12,) and torch.isfinite(aux).all() and (aux >= 0).all() and (aux <= 0.02 + 1e-6).all()
+    if "upright" in path.stem:
+        observation[:, 6:9] = torch.tensor([1.0, 0.0, 0.0])  # lying on its side
+        torch.testing.assert_close(fn({"observation": observation}), torch.zeros(len(velocities)))
 
 
 # ---------------------------------------------------------------------------------------------------
