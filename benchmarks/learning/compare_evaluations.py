@@ -121,6 +121,9 @@ def main(argv: list[str] | None = None) -> None:
     stuck_term, stuck_below = parse_stuck(args.stuck) if args.stuck is not None else (None, math.nan)
     arms = dict(parse_arm(text) for text in args.arm)
     evaluated = {name: [read_run(run, args.metric, args.bin) for run in runs] for name, runs in arms.items()}
+    for run in itertools.chain.from_iterable(evaluated.values()):  # before anything is printed
+        if stuck_term is not None and stuck_term not in run.returns:
+            raise SystemExit(f"error: {run.run_dir} has no evaluated return {stuck_term!r} (--stuck)")
     terms = [term for term in args.terms.split(",") if term]
     sign = -1.0 if args.lower_is_better else 1.0
 
@@ -144,9 +147,6 @@ def main(argv: list[str] | None = None) -> None:
         if args.bar is not None:
             line += f"; {sum(meets(run) for run in runs)} meet the bar ({args.bar:g}, every episode full)"
         if stuck_term is not None:
-            for run in runs:
-                if stuck_term not in run.returns:
-                    raise SystemExit(f"error: {run.run_dir} has no evaluated return {stuck_term!r} (--stuck)")
             stuck = sum(run.returns[stuck_term] < stuck_below for run in runs)
             line += f"; {stuck} stuck ({stuck_term} below {stuck_below:g})"
         print(line)
