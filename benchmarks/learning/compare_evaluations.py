@@ -121,9 +121,10 @@ def main(argv: list[str] | None = None) -> None:
     stuck_term, stuck_below = parse_stuck(args.stuck) if args.stuck is not None else (None, math.nan)
     arms = dict(parse_arm(text) for text in args.arm)
     evaluated = {name: [read_run(run, args.metric, args.bin) for run in runs] for name, runs in arms.items()}
-    for run in itertools.chain.from_iterable(evaluated.values()):  # before anything is printed
-        if stuck_term is not None and stuck_term not in run.returns:
-            raise SystemExit(f"error: {run.run_dir} has no evaluated return {stuck_term!r} (--stuck)")
+    if stuck_term is not None:  # checked before anything is printed
+        for run in itertools.chain.from_iterable(evaluated.values()):
+            if stuck_term not in run.returns:
+                raise SystemExit(f"error: {run.run_dir} has no evaluated return {stuck_term!r} (--stuck)")
     terms = [term for term in args.terms.split(",") if term]
     sign = -1.0 if args.lower_is_better else 1.0
 
