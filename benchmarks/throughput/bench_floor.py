@@ -21,7 +21,8 @@ thread count and per collected batch of N envs x T steps:
 * ``advantages``: ``WeightedMultiGAE`` over one collected batch, once per epoch (as ``training/loop.py`` runs it
   with ``ppo.advantage_pass=every_epoch``; once per batch with ``once_per_batch``);
 * ``loss steps``: loss forward, backward, gradient clipping and a fused Adam step on a ready minibatch of the
-  run's size, times epochs x minibatches (the forward through ``torch.compile`` with ``trainer.compile=true``,
+  run's size (with ``ppo.mirror=true``, the minibatch followed by its mirror image: twice the rows), times
+  epochs x minibatches (the forward through ``torch.compile`` with ``trainer.compile=true``,
   compiled in the untimed warm-up).
 
 The floor is physics + loss steps, what any PPO at this geometry and network size pays; ``rest`` is the end
@@ -43,7 +44,13 @@ from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_ahrs.app.shared.config import num_minibatches
-from torchrl_ahrs.app.train.build import build_collector, build_estimator_and_loss, build_networks, env_factory
+from torchrl_ahrs.app.train.build import (
+    build_collector,
+    build_estimator_and_loss,
+    build_mirror,
+    build_networks,
+    env_factory,
+)
 from torchrl_ahrs.training.loop import MINIBATCH_KEYS
 
 # what --variants accepts: a name -> the Hydra overrides it adds (names join with "+": once+threads2)
@@ -137,6 +144,9 @@ def floor_parts(cfg, repeats: int) -> dict[str, float]:
     )
     keys = [*loss.in_keys, *MINIBATCH_KEYS]  # what training/loop.py gathers into minibatches
     minibatch = batch.reshape(-1)[: trainer.mini_batch_size].select(*keys, strict=False)
+    augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)
+    if augment is not None:  # ppo.mirror: the loss trains on the minibatch and its image, as any symmetric PPO does
+        minibatch = augment(minibatch)  # made once, untimed: the floor is the loss on the ready, twice-sized minibatch
     optimizer = torch.optim.Adam(loss.parameters(), lr=1e-5, eps=1e-5, fused=True)  # as train() builds it
     loss_forward = torch.compile(loss) if trainer.get("compile", False) else loss  # as training/loop.py calls it
 
@@ -148,7 +158,8 @@ def floor_parts(cfg, repeats: int) -> dict[str, float]:
         optimizer.zero_grad()
 
     steps_per_batch = trainer.num_epochs * num_minibatches(cfg)
-    parts[f"loss steps (x {steps_per_batch})"] = steps_per_batch * median_ms(loss_step, 10 * repeats, warmup=10)
+    name = f"loss steps (x {steps_per_batch}{', mirrored' if augment is not None else ''})"
+    parts[name] = steps_per_batch * median_ms(loss_step, 10 * repeats, warmup=10)
     return parts
 
 

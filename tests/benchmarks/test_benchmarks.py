@@ -93,6 +93,22 @@ def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, caps
     assert all(value > 0 for name, value in ms.items() if not name.startswith("rest"))
 
 
+def test_bench_floor_times_the_mirrored_minibatch_when_the_run_mirrors(monkeypatch, capsys):
+    argv = ["--task", "cassie", "--batches", "1", "--warmup", "1", "--repeats", "1", "trainer.num_envs=2"]
+    argv += [
+        "trainer.frames_per_batch=16",
+        "trainer.mini_batch_size=8",
+        "trainer.num_epochs=1",
+        "model.hidden_sizes=[8]",
+    ]
+    out = run_script("throughput/bench_floor.py", [*argv, "ppo.mirror=true"], monkeypatch, capsys)
+    ms = {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
+    # the loss floor is what the run's loss trains on: each minibatch and its mirror image
+    assert ms["floor = physics + loss steps"] == pytest.approx(
+        ms["physics (random actions)"] + ms["loss steps (x 2, mirrored)"], abs=0.2
+    )
+
+
 def test_bench_floor_measures_variants_side_by_side_in_one_process(monkeypatch, capsys):
     argv = ["--task", "ant_v5", "--batches", "1", "--warmup", "1", "--repeats", "1", "--variants", "default,once"]
     argv += ["trainer.num_envs=2", "trainer.frames_per_batch=16", "trainer.mini_batch_size=8", "trainer.num_epochs=2"]
