@@ -2,6 +2,7 @@
 
 import json
 import runpy
+import subprocess
 import sys
 from pathlib import Path
 
@@ -284,3 +285,28 @@ def test_compare_evaluations_refuses_a_malformed_or_unknown_stuck_term_in_one_li
         run_script("learning/compare_evaluations.py", ["--stuck", "tracking_lin_vel", *arm], monkeypatch, capsys)
     with pytest.raises(SystemExit, match=r"has no evaluated return 'no_such_term' \(--stuck\)"):
         run_script("learning/compare_evaluations.py", ["--stuck", "no_such_term=8", *arm], monkeypatch, capsys)
+
+
+def test_run_seeds_trains_evaluates_at_both_seeds_and_skips_what_is_done(tmp_path):
+    script = BENCHMARKS / "learning" / "run_seeds.sh"
+    overrides = "task=quadcopter method=ppo trainer.total_frames=128 trainer.num_envs=4 trainer.frames_per_batch=128"
+    command = [
+        str(script),
+        str(tmp_path),
+        "tiny",
+        f"{overrides} trainer.mini_batch_size=64 model.hidden_sizes=[8]",
+        "3",
+    ]
+    subprocess.run(command, check=True, cwd=BENCHMARKS.parent)
+    run = tmp_path / "tiny_s3"
+    evaluations = [json.loads((run / name).read_text()) for name in ("evaluation.json", "evaluation_seed2027.json")]
+    assert [evaluation["seed"] for evaluation in evaluations] == [12345, 2027]
+    assert (run / "finished.json").exists() and "seed: 3" in (run / "config.yaml").read_text()
+    stamps = {path: path.stat().st_mtime_ns for path in run.rglob("*")}
+    subprocess.run(command, check=True, cwd=BENCHMARKS.parent)  # done: nothing is trained or evaluated again
+    assert {path: path.stat().st_mtime_ns for path in run.rglob("*")} == stamps
+
+
+def test_run_seeds_refuses_missing_arguments_with_its_usage():
+    done = subprocess.run([str(BENCHMARKS / "learning" / "run_seeds.sh"), "a", "b"], capture_output=True, text=True)
+    assert done.returncode == 2 and done.stderr.startswith("usage: ")

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Trains and evaluates one arm on several seeds, one after another, resuming where an earlier call stopped.
+#
+#   benchmarks/learning/run_seeds.sh <results dir> <name> "<train overrides>" <seed> [<seed> ...]
+#
+# e.g. (one lane of RESULTS round 37; start several lanes with & for runs side by side):
+#   benchmarks/learning/run_seeds.sh benchmarks/results/issue26_probes cassie_r37_ahrs_anchored \
+#       "method=ahrs ppo.mix=anchored trainer.total_frames=2500000" 4 5 9
+#
+# Per seed s, the run directory is <results dir>/<name>_s<s>:
+#   - evaluated at both evaluation seeds (evaluation.json and evaluation_seed2027.json): skipped;
+#   - finished (finished.json): evaluated only;
+#   - with a checkpoint.pt: continued with `train resume=<dir>`, then evaluated;
+#   - otherwise: trained from scratch (a directory left without a checkpoint is removed first), then evaluated.
+# Evaluations: `python -m torchrl_ahrs.evaluate run=<dir>` (seed 12345) and the held-out seed 2027. Console output
+# goes to <dir>.err (training) and <dir>/evaluate*.txt; run from the repository root with the package installed.
+set -euo pipefail
+if [ $# -lt 4 ]; then
+  echo "usage: $0 <results dir> <name> \"<train overrides>\" <seed> [<seed> ...]" >&2
+  exit 2
+fi
+results=$1 name=$2 overrides=$3
+shift 3
+mkdir -p "$results"
+for seed in "$@"; do
+  run="$results/${name}_s$seed"
+  if [ -f "$run/evaluation.json" ] && [ -f "$run/evaluation_seed2027.json" ]; then
+    continue
+  fi
+  if [ ! -f "$run/finished.json" ]; then
+    if [ -f "$run/checkpoint.pt" ]; then
+      python -m torchrl_ahrs.train resume="$run" trainer.progress_bar=false >>"$run.err" 2>&1
+    else
+      rm -rf "$run"
+      # shellcheck disable=SC2086  # the overrides are words on purpose
+      python -m torchrl_ahrs.train $overrides seed="$seed" trainer.progress_bar=false hydra.run.dir="$run" >"$run.err" 2>&1
+    fi
+  fi
+  [ -f "$run/evaluation.json" ] || python -m torchrl_ahrs.evaluate run="$run" >"$run/evaluate.txt" 2>&1
+  python -m torchrl_ahrs.evaluate run="$run" seed=2027 output=evaluation_seed2027.json >"$run/evaluate_seed2027.txt" 2>&1
+done
