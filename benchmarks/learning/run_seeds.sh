@@ -3,9 +3,12 @@
 #
 #   benchmarks/learning/run_seeds.sh <results dir> <name> "<train overrides>" <seed> [<seed> ...]
 #
-# e.g. (one lane of RESULTS round 37; start several lanes with & for runs side by side):
-#   benchmarks/learning/run_seeds.sh benchmarks/results/issue26_probes cassie_r37_ahrs_anchored \
-#       "method=ahrs ppo.mix=anchored trainer.total_frames=2500000" 4 5 9
+# e.g. one lane of RESULTS round 37 (start several lanes with & for runs side by side):
+#   benchmarks/learning/run_seeds.sh benchmarks/results/issue26_probes \
+#       cassie_r37_ahrs_anchored_mirror_kl004_progress_half_klactor \
+#       "method=ahrs ppo.mix=anchored ppo.mirror=true ppo.kl_target=0.04 trainer.total_frames=2500000
+#        trainer.num_envs=128 ppo.kl_adapts=actor aux.path=benchmarks/pilots/aux/cassie_progress.py aux.scale=0.5" \
+#       4 5 9
 #
 # Per seed s, the run directory is <results dir>/<name>_s<s>:
 #   - evaluated at both evaluation seeds (evaluation.json and evaluation_seed2027.json): skipped;
@@ -14,6 +17,7 @@
 #   - otherwise: trained from scratch (a directory left without a checkpoint is removed first), then evaluated.
 # Evaluations: `python -m torchrl_ahrs.evaluate run=<dir>` (seed 12345) and the held-out seed 2027. Console output
 # goes to <dir>.err (training) and <dir>/evaluate*.txt; run from the repository root with the package installed.
+# A command that fails stops the lane there (set -e), its output in those files; calling again retries that seed.
 set -euo pipefail
 if [ $# -lt 4 ]; then
   echo "usage: $0 <results dir> <name> \"<train overrides>\" <seed> [<seed> ...]" >&2
