@@ -76,16 +76,21 @@ def test_bench_pipeline_runs_ours_and_the_reference(monkeypatch, capsys):
     assert "ratio ours/reference" in out
 
 
-def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, capsys):
-    argv = ["--task", "ant_v5", "--batches", "1", "--warmup", "1", "--repeats", "1", "trainer.num_envs=2"]
+def run_tiny_bench_floor(task: str, overrides: list[str], monkeypatch, capsys) -> dict[str, float]:
+    """bench_floor on one batch of 2 envs x 8 steps, 2 minibatches, an [8] network: its rows as {part: ms}."""
+    argv = ["--task", task, "--batches", "1", "--warmup", "1", "--repeats", "1", "trainer.num_envs=2"]
     argv += [
         "trainer.frames_per_batch=16",
         "trainer.mini_batch_size=8",
         "trainer.num_epochs=1",
         "model.hidden_sizes=[8]",
     ]
-    out = run_script("throughput/bench_floor.py", argv, monkeypatch, capsys)
-    ms = {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
+    out = run_script("throughput/bench_floor.py", [*argv, *overrides], monkeypatch, capsys)
+    return {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
+
+
+def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, capsys):
+    ms = run_tiny_bench_floor("ant_v5", [], monkeypatch, capsys)
     parts = ["collection (Collector, policy acting)", "advantages (x 1 epochs)", "loss steps (x 2)"]
     # the rows add up: floor = physics + loss steps, end to end = collection + advantages + loss steps + rest
     assert ms["floor = physics + loss steps"] == pytest.approx(ms["physics (random actions)"] + ms[parts[2]], abs=0.2)
@@ -95,15 +100,7 @@ def test_bench_floor_splits_end_to_end_into_its_measured_parts(monkeypatch, caps
 
 
 def test_bench_floor_times_the_mirrored_minibatch_when_the_run_mirrors(monkeypatch, capsys):
-    argv = ["--task", "cassie", "--batches", "1", "--warmup", "1", "--repeats", "1", "trainer.num_envs=2"]
-    argv += [
-        "trainer.frames_per_batch=16",
-        "trainer.mini_batch_size=8",
-        "trainer.num_epochs=1",
-        "model.hidden_sizes=[8]",
-    ]
-    out = run_script("throughput/bench_floor.py", [*argv, "ppo.mirror=true"], monkeypatch, capsys)
-    ms = {line[:44].strip(): float(line[44:].split()[0]) for line in out.splitlines()[2:-1]}
+    ms = run_tiny_bench_floor("cassie", ["ppo.mirror=true"], monkeypatch, capsys)
     # the loss floor is what the run's loss trains on: each minibatch and its mirror image
     assert ms["floor = physics + loss steps"] == pytest.approx(
         ms["physics (random actions)"] + ms["loss steps (x 2, mirrored)"], abs=0.2
