@@ -41,5 +41,6 @@ for seed in "$@"; do
     fi
   fi
   [ -f "$run/evaluation.json" ] || python -m torchrl_ahrs.evaluate run="$run" >"$run/evaluate.txt" 2>&1
-  python -m torchrl_ahrs.evaluate run="$run" seed=2027 output=evaluation_seed2027.json >"$run/evaluate_seed2027.txt" 2>&1
+  [ -f "$run/evaluation_seed2027.json" ] ||
+    python -m torchrl_ahrs.evaluate run="$run" seed=2027 output=evaluation_seed2027.json >"$run/evaluate_seed2027.txt" 2>&1
 done
