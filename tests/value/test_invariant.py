@@ -64,6 +64,13 @@ def test_ppo_is_the_one_head_case_of_the_same_estimator():
     torch.testing.assert_close(mixed, estimator.weights[0] * ppo_advantage, rtol=1e-4, atol=1e-5)
 
 
+def test_the_anchored_mix_over_one_component_is_ppo_without_a_second_critic():
+    """A preset may set ``ppo.mix=anchored`` for every method of a task; PPO's one head is its own anchor."""
+    cfg, estimator, mixed, ppo_advantage = _mixed_and_oracle("method=ppo", "ppo.mix=anchored")
+    assert estimator.columns == ["total"] and cfg.ppo.mix == "anchored"
+    torch.testing.assert_close(mixed, estimator.weights[0] * ppo_advantage, rtol=1e-4, atol=1e-5)
+
+
 def column_values(estimator, column: int) -> TensorDictSequential:
     """The estimator's value network (in reward units) reduced to one of its columns, ``[*B, 1]``."""
     pick = TensorDictModule(lambda v: v[..., [column]], in_keys=["state_value"], out_keys=["state_value"])

@@ -148,7 +148,7 @@ def build_networks(
             model.activation,
             model.separate_heads,
             in_key=critic_key,
-            anchor_head=anchored(cfg),  # the anchored mix's value of the summed reward, from an MLP of its own
+            anchor_head=anchored(cfg, len(make_envs.components)),  # the summed reward's value, an MLP of its own
         )
     actor.to(device)  # moves actor_norm (and critic_norm when they are one module) too
     if critic is not None:
@@ -157,9 +157,13 @@ def build_networks(
     return Networks(actor, critic, actor_norm, critic_norm, critic_key)
 
 
-def anchored(cfg: DictConfig) -> bool:
-    """``ppo.mix=anchored`` (a run saved before the key mixed ``sum``)."""
-    return cfg.ppo.get("mix", "sum") == "anchored"
+def anchored(cfg: DictConfig, num_components: int) -> bool:
+    """``ppo.mix=anchored`` over more than one component (a run saved before the key mixed ``sum``).
+
+    With one component the summed reward is that component: the anchor would be a second critic of the same
+    return and the anchored mix A = w A_1 is the sum's, so a task's preset can set the mix for every method,
+    PPO's one head included, without giving PPO a critic it does not use."""
+    return cfg.ppo.get("mix", "sum") == "anchored" and num_components > 1
 
 
 def build_estimator_and_loss(
@@ -172,7 +176,7 @@ def build_estimator_and_loss(
     them mapped back to reward units (training/value_norm.py); the statistics live in the estimator's
     value network (checkpointed with it) and are reachable as ``estimator.value_norm``."""
     ppo = cfg.ppo
-    value_norm = make_value_norm(ppo.get("value_norm"), len(components) + anchored(cfg))  # one per GAE column
+    value_norm = make_value_norm(ppo.get("value_norm"), len(components) + anchored(cfg, len(components)))  # per column
     gae_critic = denormalized_critic(networks.critic, value_norm) if value_norm is not None else networks.critic
     estimator = WeightedMultiGAE(
         list(components),
@@ -181,7 +185,7 @@ def build_estimator_and_loss(
         value_network=gae_critic,
         component_scale=ppo.component_scale,
         value_norm=value_norm,  # read by component_scale=value_norm; updated by the loop (training/loop.py)
-        anchored=anchored(cfg),
+        anchored=anchored(cfg, len(components)),
     )
     estimator.to(device)  # the weights [K] and shares [K] buffers, and the value-norm statistics
     loss = HybridClipPPOLoss(
