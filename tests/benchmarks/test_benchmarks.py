@@ -289,6 +289,8 @@ def test_run_seeds_trains_evaluates_at_both_seeds_and_skips_what_is_done(tmp_pat
     overrides = "task=quadcopter method=ppo trainer.total_frames=128 trainer.num_envs=4 trainer.frames_per_batch=128"
     command = [
         str(script),
+        "--eval",
+        "episodes=2",  # the evaluation overrides reach both evaluations
         str(tmp_path),
         "tiny",
         f"{overrides} trainer.mini_batch_size=64 model.hidden_sizes=[8]",
@@ -298,6 +300,7 @@ def test_run_seeds_trains_evaluates_at_both_seeds_and_skips_what_is_done(tmp_pat
     run = tmp_path / "tiny_s3"
     evaluations = [json.loads((run / name).read_text()) for name in ("evaluation.json", "evaluation_seed2027.json")]
     assert [evaluation["seed"] for evaluation in evaluations] == [12345, 2027]
+    assert [len(evaluation["per_episode"]["length"]) for evaluation in evaluations] == [2, 2]
     assert (run / "finished.json").exists() and "seed: 3" in (run / "config.yaml").read_text()
     stamps = {path: path.stat().st_mtime_ns for path in run.rglob("*")}
     subprocess.run(command, check=True, cwd=BENCHMARKS.parent)  # done: nothing is trained or evaluated again
