@@ -176,7 +176,8 @@ def build_estimator_and_loss(
     them mapped back to reward units (training/value_norm.py); the statistics live in the estimator's
     value network (checkpointed with it) and are reachable as ``estimator.value_norm``."""
     ppo = cfg.ppo
-    value_norm = make_value_norm(ppo.get("value_norm"), len(components) + anchored(cfg, len(components)))  # per column
+    anchor = anchored(cfg, len(components))
+    value_norm = make_value_norm(ppo.get("value_norm"), len(components) + anchor)  # one per GAE column
     gae_critic = denormalized_critic(networks.critic, value_norm) if value_norm is not None else networks.critic
     estimator = WeightedMultiGAE(
         list(components),
@@ -185,7 +186,7 @@ def build_estimator_and_loss(
         value_network=gae_critic,
         component_scale=ppo.component_scale,
         value_norm=value_norm,  # read by component_scale=value_norm; updated by the loop (training/loop.py)
-        anchored=anchored(cfg, len(components)),
+        anchored=anchor,
     )
     estimator.to(device)  # the weights [K] and shares [K] buffers, and the value-norm statistics
     loss = HybridClipPPOLoss(
