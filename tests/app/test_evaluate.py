@@ -17,6 +17,7 @@ from PIL import Image
 
 from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
 from torchrl_ahrs.app.shared.config import save_config
+from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.evaluate import evaluate
 from torchrl_ahrs.train import train
@@ -220,3 +221,19 @@ def test_envs_without_a_renderer_say_so():
 
     with pytest.raises(RenderUnavailable, match="NotMujoco has no renderer"):
         make_frame_source(NotMujoco(), 8, 8)
+
+
+@pytest.mark.slow
+def test_trainer_task_overrides_change_the_training_environments_and_evaluate_scores_the_task(tmp_path):
+    # 4 batches of 32 steps per environment: 128 steps, so 40-step episodes end 3 times per environment, 100-step once
+    train(make_cfg(*TINY_RUN, "+trainer.task_overrides.max_episode_steps=40"), tmp_path)
+    episodes = np.loadtxt(tmp_path / "metrics" / "scalars" / "episodes.csv", delimiter=",", skiprows=1, ndmin=2)
+    assert episodes[:, 1].sum() == 32 * (128 // 40)
+    saved = (tmp_path / "config.yaml").read_text()
+    assert f"max_episode_steps: {POINT_REACH_EPISODE_STEPS}" in saved  # `task` as defined, the change apart
+    summary = evaluate(tmp_path, episodes=2, seed=5, output=None)
+    assert summary["per_episode"]["length"] == [POINT_REACH_EPISODE_STEPS] * 2
+    assert summary["trained_with_task_overrides"] == {"max_episode_steps": 40}
+    with pytest.raises(ConfigError, match=r"^task.max_steps is not a setting of task 'point_reach'$"):
+        train(make_cfg(*TINY_RUN, "+trainer.task_overrides.max_steps=40"), tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()  # refused before anything is written

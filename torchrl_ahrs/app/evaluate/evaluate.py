@@ -64,6 +64,7 @@ def evaluate(
         results = run_episodes(env, policy.actor, reported, deterministic, step_probe(policy.task.name))
     finally:
         env.close()
+    trained_with = policy.cfg.trainer.get("task_overrides")  # absent from the configs of runs before the option
     summary = {
         "run": str(Path(run_dir).resolve()),
         "task": policy.task.name,
@@ -72,6 +73,8 @@ def evaluate(
         "deterministic": deterministic,
         "seed": seed,
         "task_overrides": dict(task_overrides or {}),
+        # what the run's training environments changed (trainer.task_overrides); scored here on `task` as defined
+        "trained_with_task_overrides": OmegaConf.to_container(trained_with) if trained_with else {},
         **summarize(results, episode_metrics(results.returns, results.metrics)),
     }
     if output:
@@ -133,6 +136,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"{summary['episodes']} episodes (length {length['mean']:.1f} ± {length['std']:.1f}, "
         f"{'mean action' if summary['deterministic'] else 'sampled actions'})"
     ]
+    if summary.get("trained_with_task_overrides"):
+        lines.append(f"  task changed for training only: {json.dumps(summary['trained_with_task_overrides'])}")
     if summary.get("task_overrides"):
         lines.append(f"  task changed for this evaluation: {json.dumps(summary['task_overrides'])}")
     width = max(len(name) for name in returns)

@@ -5,14 +5,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 from torchrl.modules import ProbabilisticActor
 
+from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
+from torchrl_ahrs.app.shared.settings import override_task
 from torchrl_ahrs.app.train.build import EnvFactory, build_networks, env_factory
 from torchrl_ahrs.envs.settings import TaskSettings
 
@@ -72,7 +73,10 @@ def load_policy(run_dir: str | Path, task_overrides: Mapping[str, Any] | None = 
     if not isinstance(cfg, DictConfig):  # a YAML list would fail below with an unrelated message
         raise EvaluationError(f"{config_path} is not a run configuration (not a mapping)")
     if task_overrides:
-        cfg.task = override_task(cfg.task, task_overrides)
+        try:
+            cfg.task = override_task(cfg.task, task_overrides)
+        except ConfigError as error:
+            raise EvaluationError(str(error)) from None
     try:
         checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
     except Exception as error:  # torch raises many types for a damaged file
@@ -92,30 +96,6 @@ def load_policy(run_dir: str | Path, task_overrides: Mapping[str, Any] | None = 
         ) from error
     actor.eval()
     return TrainedPolicy(cfg, make_envs, actor)
-
-
-def override_task(task: DictConfig, overrides: Mapping[str, Any]) -> DictConfig:
-    """``task`` with ``overrides`` merged in; every overridden key must already be a setting of ``task``.
-
-    Example:
-        >>> from omegaconf import OmegaConf
-        >>> task = OmegaConf.create({"name": "cassie", "commands": {"resampling_time_s": 5.0}})
-        >>> override_task(task, {"commands": {"resampling_time_s": 10.0}}).commands.resampling_time_s
-        10.0
-        >>> override_task(task, {"commands": {"resampling_s": 10.0}})
-        Traceback (most recent call last):
-        ...
-        torchrl_ahrs.app.evaluate.policy.EvaluationError: task.commands.resampling_s is not a setting of task 'cassie'
-    """
-    base = OmegaConf.create(OmegaConf.to_container(task, resolve=True))  # a copy: the caller's config is not changed
-    OmegaConf.set_struct(base, True)  # struct: a misspelt key raises instead of adding a setting nothing reads
-    try:
-        merged = cast(DictConfig, OmegaConf.merge(base, OmegaConf.create(dict(overrides))))  # a mapping into a mapping
-    except OmegaConfBaseException as error:
-        key = getattr(error, "full_key", None) or _one_line(error)
-        raise EvaluationError(f"task.{key} is not a setting of task {task.get('name')!r}") from None
-    OmegaConf.set_struct(merged, False)  # from here on the same open config as a task that was not overridden
-    return merged
 
 
 def _one_line(error: BaseException) -> str:

@@ -13,6 +13,7 @@ from torchrl_ahrs.app.shared.auxiliary import aux_leaves, auxiliary_components
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.redaction import is_secret_key
 from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
+from torchrl_ahrs.app.shared.settings import override_task
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
 from torchrl_ahrs.training.models import DISTRIBUTIONS, OBSERVATION_NORMS
@@ -73,6 +74,7 @@ def validate_config(cfg: DictConfig) -> None:
     if cfg.task.name not in available_tasks():
         raise ConfigError(f"unknown task {cfg.task.name!r}; available tasks: {', '.join(available_tasks())}")
     trainer = cfg.trainer
+    override_task(cfg.task, trainer.get("task_overrides"))  # each one names a setting of the task, or a ConfigError
     positive = {
         "trainer.total_frames": trainer.total_frames,
         "trainer.num_envs": trainer.num_envs,

@@ -5,6 +5,8 @@
 * :func:`llm_settings`: the ``llm`` group → :class:`~torchrl_ahrs.llm.client.LLMConfig`.
 * :func:`llm_and_task`, :func:`generation_output_dir`: what the generator commands read.
 * :func:`load_task_config`: ``conf/task/<name>.yaml`` composed from the installed package.
+* :func:`override_task`: a ``task`` section with some of its settings changed (``trainer.task_overrides`` for the
+  training environments, ``evaluate task=`` for one evaluation); a key the task does not have is refused.
 * :func:`task_settings`, :func:`load_task_settings`: the ``task`` section → the frozen record its builder
   reads (:mod:`torchrl_ahrs.envs.settings`); a key no field takes is refused, naming it and the task.
 * :func:`select`: one optional value of a composed config or a plain nested dict.
@@ -32,6 +34,7 @@ from pathlib import Path
 from typing import Any, TypeVar, cast
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.envs.registry import settings_type
@@ -173,6 +176,33 @@ def load_task_config(name: str, overrides: Sequence[str] = ()) -> DictConfig:
     with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
         cfg = compose(config_name="config", overrides=[f"task={name}", *overrides])
     return cast(DictConfig, cfg.task)
+
+
+def override_task(task: DictConfig, overrides: Mapping[str, Any] | None) -> DictConfig:
+    """``task`` with ``overrides`` merged in, as a copy; every overridden key must already be a setting of ``task``.
+
+    Example:
+        >>> task = OmegaConf.create({"name": "cassie", "commands": {"resampling_time_s": 10.0}})
+        >>> override_task(task, {"commands": {"resampling_time_s": 5.0}}).commands.resampling_time_s
+        5.0
+        >>> task.commands.resampling_time_s  # the caller's section is not changed
+        10.0
+        >>> override_task(task, {"commands": {"resampling_s": 5.0}})
+        Traceback (most recent call last):
+        ...
+        torchrl_ahrs.app.shared.errors.ConfigError: task.commands.resampling_s is not a setting of task 'cassie'
+    """
+    base = OmegaConf.create(OmegaConf.to_container(task, resolve=True))  # a copy: the caller's config is not changed
+    if not overrides:
+        return cast(DictConfig, base)
+    OmegaConf.set_struct(base, True)  # struct: a misspelt key raises instead of adding a setting nothing reads
+    try:
+        merged = cast(DictConfig, OmegaConf.merge(base, OmegaConf.create(dict(overrides))))  # a mapping into a mapping
+    except OmegaConfBaseException as error:
+        key = getattr(error, "full_key", None) or " ".join(str(error).split())[:300]
+        raise ConfigError(f"task.{key} is not a setting of task {task.get('name')!r}") from None
+    OmegaConf.set_struct(merged, False)  # from here on the same open config as a task that was not overridden
+    return merged
 
 
 # task keys that are not simulation settings: the prompts' text, and what the trainer reads from cfg.task

@@ -10,7 +10,7 @@ policy's device and the action back (TorchRL's ``policy_device`` / ``storing_dev
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +24,7 @@ from torchrl_ahrs.app.shared.auxiliary import TransformFactory, auxiliary_transf
 from torchrl_ahrs.app.shared.config import resolve_components
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
-from torchrl_ahrs.app.shared.settings import scheduler_settings, task_settings
+from torchrl_ahrs.app.shared.settings import override_task, scheduler_settings, task_settings
 from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
 from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device, task_mirror
 from torchrl_ahrs.envs.settings import TaskSettings
@@ -84,14 +84,22 @@ def resolve_devices(cfg: DictConfig) -> RunDevices:
     return RunDevices(learner, env_device(task_settings(cfg.task).backend, learner))
 
 
-def env_factory(cfg: DictConfig, check_aux: bool = True, device: torch.device | str = "cpu") -> EnvFactory:
-    """The run's :class:`EnvFactory` building environments on ``device``; with ``check_aux`` the auxiliary
-    reward file (when the method uses one) passes the sandbox on real transitions first."""
+def env_factory(
+    cfg: DictConfig,
+    check_aux: bool = True,
+    device: torch.device | str = "cpu",
+    task_overrides: Mapping[str, Any] | None = None,
+) -> EnvFactory:
+    """The run's :class:`EnvFactory` building environments on ``device`` for ``cfg.task`` with ``task_overrides``
+    merged in (:func:`~torchrl_ahrs.app.shared.settings.override_task`: the training run passes
+    ``trainer.task_overrides``); with ``check_aux`` the auxiliary reward file (when the method uses one) passes
+    the sandbox on real transitions first."""
     aux = auxiliary_transform(cfg, check=check_aux)
     # an unsquashed Gaussian samples outside the bounds: the env gets the clipped action, the rollout the sample
     clip = ClipActionToSpec if cfg.model.get("distribution", "tanh_normal") == "normal" else None
     transforms = tuple(factory for factory in (clip, aux) if factory)
-    return EnvFactory(task_settings(cfg.task), resolve_components(cfg), transforms, str(device))
+    task = override_task(cfg.task, task_overrides) if task_overrides else cfg.task
+    return EnvFactory(task_settings(task), resolve_components(cfg), transforms, str(device))
 
 
 @dataclass

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from torchrl_ahrs.app.shared.config import num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.shared.errors import ConfigError
@@ -83,13 +83,17 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     torch.set_num_threads(cfg.trainer.torch_threads)
 
     devices = resolve_devices(cfg)
-    # + the sandbox-checked auxiliary reward when the method uses one
-    make_envs = env_factory(cfg, device=devices.envs)
+    # + the sandbox-checked auxiliary reward when the method uses one; trainer.task_overrides change the training
+    # environments only, so that evaluate (which reads `task`) scores the task as defined
+    task_overrides = cfg.trainer.get("task_overrides")
+    make_envs = env_factory(cfg, device=devices.envs, task_overrides=task_overrides)
     components = make_envs.components
     # a misspelt term, or components that miss part of the native reward, fail here, on a few real steps
     check_task_rewards(make_envs, int(cfg.seed), sums_to_native=bool(cfg.task.get("components_sum_to_native", True)))
     log.info("task %s, method %s, K=%d components %s", cfg.task.name, cfg.method.name, len(components), components)
     log.info("learner on %s, environments on %s", devices.learner, devices.envs)
+    if task_overrides:
+        log.info("training on the task changed by trainer.task_overrides %s", OmegaConf.to_container(task_overrides))
     backend = make_envs.task.backend
     physics = simulation_device(backend) if backend == "mjx" else devices.envs
     if physics != devices.envs:  # e.g. JAX on a GPU with trainer.device=cpu
