@@ -64,6 +64,8 @@ def assert_one_line_error(result: subprocess.CompletedProcess, expected: str) ->
             "error: model.hidden_sizes must list at least one positive width (e.g. [64,64]), got []",
         ),
         ("model.hidden_sizes=[64,0]", "error: model.hidden_sizes must list at least one positive width"),
+        # dmc_cheetah_run ships jog_speed, so the shipped-key check passes it; point_reach's task has no such setting
+        ("+trainer.task_overrides.jog_speed=3.0", "error: task.jog_speed is not a setting of task 'point_reach'"),
     ],
 )
 def test_config_mistakes_are_one_line_and_exit_2(tmp_path, capsys, monkeypatch, override, expected):
@@ -90,6 +92,7 @@ def test_shipped_optional_keys_stay_accepted():
 
     check_command_line(["task=point_reach", "+task.num_threads=1", "+task.critic_observation=x", "hydra.run.dir=x"])
     check_command_line(["+sweep=smoke", "hydra/launcher=local", "method.rule=a,b", "seed=range(1,3)", "-m"])
+    check_command_line(["+trainer.task_overrides.max_episode_steps=40"])  # a task's key, for training only
 
 
 @pytest.mark.skipif(__import__("importlib").util.find_spec("wandb") is not None, reason="wandb is installed")

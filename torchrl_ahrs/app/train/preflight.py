@@ -114,11 +114,16 @@ def override_key(argument: str) -> tuple[str, str] | None:
     return prefix, key
 
 
+# sections whose keys are those of another section: trainer.task_overrides holds settings of the task
+MIRRORED_SECTIONS = {"trainer.task_overrides.": "task."}
+
+
 def check_command_line(arguments: Iterable[str], config_package: str = "torchrl_ahrs.conf") -> None:
     """Raises :class:`PreflightError` for the first override whose key no shipped config file has.
 
     Example:
         >>> check_command_line(["task=point_reach", "trainer.lr=1e-3", "+task.num_threads=1", "-m"])
+        >>> check_command_line(["+trainer.task_overrides.commands.resampling_time_s=5.0"])
         >>> check_command_line(["+trainer.total_frame=1000"])
         Traceback (most recent call last):
         ...
@@ -133,6 +138,11 @@ def check_command_line(arguments: Iterable[str], config_package: str = "torchrl_
         return
     for prefix, key in parsed:
         if key in keys or key in groups:
+            continue
+        mirrors = (
+            mirrored + key[len(section) :] for section, mirrored in MIRRORED_SECTIONS.items() if key.startswith(section)
+        )
+        if any(mirror in keys for mirror in mirrors):  # trainer.task_overrides.x is known when task.x is
             continue
         close = difflib.get_close_matches(key, sorted(keys), n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
