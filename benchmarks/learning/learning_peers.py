@@ -31,8 +31,8 @@ Both ``ant_v5`` peers make gymnasium's ``Ant-v5`` with our preset's observation 
   (observations and rewards normalised, clipped at 10).
 * ``rsl_rl`` (our ``cassie``): rsl-rl-lib's ``OnPolicyRunner`` and PPO with legged_gym's Cassie numbers
   (leggedrobotics/legged_gym at 05481214, ``legged_robot_config.py`` ``LeggedRobotCfgPPO`` and
-  ``cassie_config.py`` ``CassieRoughCfgPPO``, :data:`LEGGED_GYM_CASSIE_PPO`) at 64 environments, like our
-  ``conf/preset/cassie.yaml`` (legged_gym: 4 096). Our ``CassieEnv`` is adapted to rsl_rl's ``VecEnv`` by
+  ``cassie_config.py`` ``CassieRoughCfgPPO``, :data:`LEGGED_GYM_CASSIE_PPO`) at 64 environments, as our
+  ``conf/preset/cassie.yaml`` had them before issue 26 (legged_gym: 4 096; the preset now runs 128 x 12 steps). Our ``CassieEnv`` is adapted to rsl_rl's ``VecEnv`` by
   :class:`rsl_rl_adapter.RslRlVecEnv`.
 """
 
@@ -72,7 +72,7 @@ SB3_ZOO_ANT: dict[str, Any] = dict(
 
 # legged_gym LeggedRobotCfgPPO (algorithm, policy, runner) with CassieRoughCfgPPO's entropy_coef, in rsl-rl-lib 5.x form
 LEGGED_GYM_CASSIE_PPO: dict[str, Any] = {
-    "num_envs": 64,  # legged_gym: 4 096; 64 as in conf/preset/cassie.yaml (2-core CPU)
+    "num_envs": 64,  # legged_gym: 4 096; 64 on a 2-core CPU, as our Cassie preset before issue 26
     "num_steps_per_env": 24,
     "save_interval": 50,
     "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
