@@ -88,5 +88,5 @@ def test_cassie_preset_carries_the_measured_2p5m_settings():
 
     cfg = make_cfg("task=cassie", "method=ahrs")
     assert (cfg.trainer.total_frames, cfg.trainer.num_envs, cfg.trainer.frames_per_batch) == (2_500_000, 128, 1536)
-    assert (cfg.ppo.kl_target, cfg.ppo.kl_adapts, cfg.ppo.mirror) == (0.04, "actor", True)
+    assert (cfg.ppo.kl_target, cfg.ppo.kl_adapts, cfg.ppo.mirror, cfg.ppo.mix) == (0.04, "actor", True, "anchored")
     assert cfg.aux.path is None and cfg.aux.scale == 0.5  # the shipped progress term at half scale
