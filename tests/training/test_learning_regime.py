@@ -90,3 +90,5 @@ def test_cassie_preset_carries_the_measured_2p5m_settings():
     assert (cfg.trainer.total_frames, cfg.trainer.num_envs, cfg.trainer.frames_per_batch) == (2_500_000, 128, 1536)
     assert (cfg.ppo.kl_target, cfg.ppo.kl_adapts, cfg.ppo.mirror, cfg.ppo.mix) == (0.04, "actor", True, "anchored")
     assert cfg.aux.path is None and cfg.aux.scale == 0.5  # the shipped progress term at half scale
+    assert cfg.trainer.task_overrides.commands.resampling_time_s == 5.0  # in training only (round 39)
+    assert cfg.task.commands.resampling_time_s == 10.0  # evaluate scores the task as defined
