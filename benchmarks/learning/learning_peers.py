@@ -32,8 +32,8 @@ Both ``ant_v5`` peers make gymnasium's ``Ant-v5`` with our preset's observation 
 * ``rsl_rl`` (our ``cassie``): rsl-rl-lib's ``OnPolicyRunner`` and PPO with legged_gym's Cassie numbers
   (leggedrobotics/legged_gym at 05481214, ``legged_robot_config.py`` ``LeggedRobotCfgPPO`` and
   ``cassie_config.py`` ``CassieRoughCfgPPO``, :data:`LEGGED_GYM_CASSIE_PPO`) at 64 environments, as our
-  ``conf/preset/cassie.yaml`` had them before issue 26 (legged_gym: 4 096; the preset now runs 128 x 12 steps). Our ``CassieEnv`` is adapted to rsl_rl's ``VecEnv`` by
-  :class:`rsl_rl_adapter.RslRlVecEnv`.
+  ``conf/preset/cassie.yaml`` had them before issue 26 (legged_gym: 4 096; the preset now runs 128 x 12 steps).
+  Our ``CassieEnv`` is adapted to rsl_rl's ``VecEnv`` by :class:`rsl_rl_adapter.RslRlVecEnv`.
 """
 
 from __future__ import annotations
