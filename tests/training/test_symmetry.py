@@ -9,10 +9,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import Bounded
 
-from torchrl_ahrs.envs.common.mirror import SignedPermutation
+from torchrl_ahrs.envs.common.mirror import MirrorAugmentation, SignedPermutation
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic
-from torchrl_ahrs.training.symmetry import MirrorAugmentation
 
 OBSERVATION = SignedPermutation((0, 2, 1, 3), (1.0, 1.0, 1.0, -1.0))  # swap two legs, flip a sideways speed
 ACTION = SignedPermutation((1, 0, 2), (1.0, 1.0, -1.0))  # swap two joints, flip a yaw joint

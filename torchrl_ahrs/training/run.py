@@ -99,7 +99,7 @@ class TrainingRun:
         value_norm: the critic heads' TorchRL ``ValueNorm`` (``ppo.value_norm``): the loss regresses value targets
             standardised with it (:mod:`~torchrl_ahrs.training.value_norm`), GAE reads the critic in reward units.
         augment: applied to each minibatch before the loss, ``[B] -> [B']`` (``ppo.mirror``: the minibatch and
-            its mirror image, :class:`~torchrl_ahrs.training.symmetry.MirrorAugmentation`); ``None``: as drawn.
+            its mirror image, :class:`~torchrl_ahrs.envs.common.mirror.MirrorAugmentation`); ``None``: as drawn.
         after_iteration: called in this order as ``after(batch, metrics)`` once the iteration's scalars are
             logged (the app's: the console line, the video clip, the checkpoint, which is last so that it holds
             the state the next iteration starts from).

@@ -26,13 +26,13 @@ from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.app.shared.settings import override_task, scheduler_settings, task_settings
 from torchrl_ahrs.envs.common.clip_actions import ClipActionToSpec
+from torchrl_ahrs.envs.common.mirror import MirrorAugmentation
 from torchrl_ahrs.envs.registry import env_device, make_env, simulation_device, task_mirror
 from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic, make_observation_norm
-from torchrl_ahrs.training.symmetry import MirrorAugmentation
 from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
 from torchrl_ahrs.value import WeightedMultiGAE
 
