@@ -1,10 +1,10 @@
 """cassie (legged_gym terms), hand-written candidate: progress along the planar command, paid while upright.
 
-Intent: as the shipped torchrl_ahrs/rewards/aux_rewards/cassie.py, the share of the commanded planar speed
-achieved along the command's direction, clamped to [0, 1], so that a run that stands or turns on the spot has a reason to step; here multiplied by the
-pelvis' uprightness 1 - sin^2(tilt) (1 upright, 0 lying on the side), so progress bought by leaning into a fall
-is paid less. Zero when the planar command is zero. Scaled by the control step 0.02 s like every other Cassie
-term: at most 20 per episode, as tracking_lin_vel.
+Intent: as the shipped torchrl_ahrs/rewards/aux_rewards/cassie.py, the share of the commanded planar speed achieved
+along the command's direction, clamped to [0, 1], so that a run that stands or turns on the spot has a reason to
+step; here multiplied by the pelvis' uprightness 1 - sin^2(tilt) (1 upright, 0 lying on the side), so progress
+bought by leaning into a fall is paid less. Zero when the planar command is zero. Scaled by the control step 0.02 s
+like every other Cassie term: at most 20 per episode, as tracking_lin_vel.
 
 obs["observation"] [N, 42]: columns 0:3 are the base linear velocity x 2 (base frame), columns 6:9 gravity in
 the pelvis frame ((0, 0, -1) upright), columns 9:11 the planar command (v_x, v_y) x 2.
