@@ -2,11 +2,13 @@
 
 Usage::
 
-    python benchmarks/throughput/bench_floor.py --task cassie [--method ppo] [--batches 10] [--warmup 2] [override ...]
+    python benchmarks/throughput/bench_floor.py --task cassie [--method ppo] [--batches 10] [--warmup 2] [--runs 1] [override ...]
     python benchmarks/throughput/bench_floor.py --task cassie --variants default,once,compile,threads2,once+threads2
 
 ``--variants`` measures each variant in turn in this one process, one table each (and a summary): a variant is
 a name of :data:`VARIANTS` or several joined by ``+``, its Hydra overrides after those of the command line.
+``--runs N`` measures each variant N times, one after another; the summary then gives the medians over the runs
+and each run's share of its floor (two runs a minute apart have differed by 17 points: benchmarks/RESULTS.md).
 
 Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method>`` does (the task's preset
 included; extra Hydra overrides follow the flags), then measures in this one process, with the run's torch
@@ -205,6 +207,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="repeats of each part (loss steps: 10x as many)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--runs", type=int, default=1, help="measurements of each variant, one after another; the summary gives medians"
+    )
+    parser.add_argument(
         "--variants",
         default="default",
         help=f"comma-separated variants measured in turn, each a name or names joined by +: {', '.join(VARIANTS)}",
@@ -219,21 +224,27 @@ def main() -> None:
             parser.error(str(error))
     overrides = [f"task={args.task}", f"method={args.method}", f"seed={args.seed}", *args.overrides]
     overrides += ["trainer.progress_bar=false", "checkpoint.interval=0", "logger.backends=[csv]"]
-    results = {}
+    results: dict[str, tuple[list[tuple[float, float]], int]] = {}  # variant -> ([(floor, end to end)] per run, frames)
     for variant in variants:
         with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
             cfg = compose(config_name="config", overrides=[*overrides, *variant_overrides(variant)])
-        results[variant] = (*measure(cfg, args.task, args.method, variant, args), cfg.trainer.frames_per_batch)
-    if len(results) > 1:  # one line per variant, side by side; "of floor": the floor over the end-to-end time
-        first = variants[0]
-        print(f"variants side by side (floor / end to end: of its own floor, and of {first}'s)")
+        runs = [measure(cfg, args.task, args.method, variant, args) for _ in range(args.runs)]
+        results[variant] = (runs, cfg.trainer.frames_per_batch)
+    if len(results) > 1 or args.runs > 1:  # one line per variant: medians over its runs; "of floor": floor / end to end
+        first_floor = statistics.median(floor for floor, _ in results[variants[0]][0])
+        print(f"variants side by side (medians of {args.runs} run(s); of its own floor, and of {variants[0]}'s)")
         print(
             f"  {'variant':34s} {'end to end ms':>13s} {'frames/s':>9s} {'floor ms':>9s} {'of floor':>9s} {'of first':>9s}"
+            "  of floor, each run"
         )
-        for variant, (floor, end_to_end, frames) in results.items():
+        for variant, (runs, frames) in results.items():
+            end_to_end = statistics.median(end for _, end in runs)
+            floor = statistics.median(floor for floor, _ in runs)
+            shares = [floor_ms / end_ms for floor_ms, end_ms in runs]
             print(
                 f"  {variant:34s} {end_to_end:13.1f} {1e3 * frames / end_to_end:9.0f} {floor:9.1f}"
-                f" {floor / end_to_end:9.0%} {results[first][0] / end_to_end:9.0%}"
+                f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%}"
+                f"  {' '.join(f'{share:.0%}' for share in shares)}"
             )
 
 

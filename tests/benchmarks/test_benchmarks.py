@@ -123,6 +123,25 @@ def test_bench_floor_measures_variants_side_by_side_in_one_process(monkeypatch, 
     assert all(row.endswith("%") for row in summary)
 
 
+def test_bench_floor_runs_a_variant_several_times_and_summarises_the_medians(monkeypatch, capsys):
+    argv = ["--task", "ant_v5", "--batches", "1", "--warmup", "1", "--repeats", "1", "--runs", "3"]
+    argv += ["trainer.num_envs=2", "trainer.frames_per_batch=16", "trainer.mini_batch_size=8", "trainer.num_epochs=1"]
+    out = run_script("throughput/bench_floor.py", [*argv, "model.hidden_sizes=[8]"], monkeypatch, capsys)
+    tables = out.split("task ant_v5")[1:]
+    assert len(tables) == 3  # one table per run
+    ratios = []
+    for table in tables:  # each run's floor over its end to end, from its own rows
+        rows = ("floor = physics + loss steps", "end to end (train)")
+        ms = {
+            line[:44].strip(): float(line[44:].split()[0]) for line in table.splitlines() if line[:44].strip() in rows
+        }
+        ratios.append(ms[rows[0]] / ms[rows[1]])
+    (row,) = out.split("variants side by side")[1].splitlines()[2:]
+    shares = [float(share.rstrip("%")) for share in row.split()[-3:]]
+    assert shares == pytest.approx([100 * ratio for ratio in ratios], abs=1.0)  # the rows' own ratios, rounded
+    assert float(row.split()[4].rstrip("%")) == pytest.approx(sorted(shares)[1], abs=1.0)  # their median
+
+
 def test_bench_floor_refuses_an_unknown_variant_before_measuring(monkeypatch, capsys):
     with pytest.raises(SystemExit) as stop:
         run_script(
