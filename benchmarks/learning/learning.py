@@ -30,9 +30,10 @@ its learning-rate annealing horizon: 1M frames for torchrl, sb3 and ours on ant_
 cassie, none for rsl_rl's adaptive rate). Budget checks: ours at any instant (the process is ended),
 sb3 and rsl_rl at every environment step, torchrl after every collected batch (it may overrun by one
 batch's collection). The evaluated policy is the one after the last completed update, and ``frames``
-counts the frames it was trained on. torch runs ``--torch-threads`` (default 1, ours' default) intra-op
-threads in every peer: at two threads the torchrl peer's minibatch steps ran ~20 times slower (and its
-collection ~4 times) on this loaded 2-core machine. Every final policy is evaluated the same way, as
+counts the frames it was trained on. torch runs ``--torch-threads`` (default 1, for runs side by side; a
+lone Cassie run of ours defaults to 2: ``conf/preset/cassie.yaml``) intra-op threads in every peer: at
+two threads the torchrl peer's minibatch steps ran ~20 times slower (and its collection ~4 times) on
+this loaded 2-core machine. Every final policy is evaluated the same way, as
 ``python -m torchrl_ahrs.evaluate`` does: our task's env (for ant_v5 EnvPool's Ant-v5, which steps like
 gymnasium's Ant-v5: ``tests/envs/test_envpool.py``), 10 environments seeded 12345, each one's first
 episode, the mean action; the return is the native total reward (Cassie also reports episode length

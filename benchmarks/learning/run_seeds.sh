@@ -3,7 +3,8 @@
 #
 #   benchmarks/learning/run_seeds.sh [--eval "<evaluate overrides>"] <results dir> <name> "<train overrides>" <seed> ...
 #
-# e.g. one lane of RESULTS round 37 (start several lanes with & for runs side by side):
+# e.g. one lane of RESULTS round 37 (start several lanes with & for runs side by side, each with
+# trainer.torch_threads=1 among its overrides: Cassie's preset gives a lone run both cores' threads):
 #   benchmarks/learning/run_seeds.sh benchmarks/results/issue26_probes \
 #       cassie_r37_ahrs_anchored_mirror_kl004_progress_half_klactor \
 #       "method=ahrs ppo.mix=anchored ppo.mirror=true ppo.kl_target=0.04 trainer.total_frames=2500000

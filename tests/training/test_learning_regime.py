@@ -92,3 +92,4 @@ def test_cassie_preset_carries_the_measured_2p5m_settings():
     assert cfg.aux.path is None and cfg.aux.scale == 0.5  # the shipped progress term at half scale
     assert cfg.trainer.task_overrides.commands.resampling_time_s == 5.0  # in training only (round 39)
     assert cfg.task.commands.resampling_time_s == 10.0  # evaluate scores the task as defined
+    assert cfg.trainer.torch_threads == 2  # the run alone on 2 cores (session 34)
