@@ -63,6 +63,8 @@ VARIANTS: dict[str, list[str]] = {
     "threads1": ["trainer.torch_threads=1"],
     "threads2": ["trainer.torch_threads=2"],  # a second intra-op thread for the networks
     "half": ["model.hidden_sizes=[256,128,64]"],  # half of every width of Cassie's [512, 256, 128] (RESULTS round 21)
+    "bf16": ["model.precision=bfloat16"],  # the hidden layers' matrix products in bfloat16 (value/critic.py MLP)
+    "fp32": ["model.precision=float32"],
 }
 
 
@@ -75,7 +77,7 @@ def variant_overrides(variant: str) -> list[str]:
         >>> variant_overrides("fast")
         Traceback (most recent call last):
         ...
-        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2, half (join with +)
+        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2, half, bf16, fp32 (join with +)
     """
     overrides = []
     for name in variant.split("+"):
@@ -183,7 +185,8 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         f"task {task}, method {method}, variant {variant} ({overrides}): {trainer.num_envs} envs x"
         f" {trainer.frames_per_batch // trainer.num_envs} steps = {trainer.frames_per_batch} frames per batch,"
         f" {trainer.num_epochs} epochs x {num_minibatches(cfg)} minibatches of {trainer.mini_batch_size},"
-        f" {list(model.hidden_sizes)} {model.activation}, torch threads {trainer.torch_threads};"
+        f" {list(model.hidden_sizes)} {model.activation} in {model.get('precision', 'float32')},"
+        f" torch threads {trainer.torch_threads};"
         f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )
     rows = [*parts.items(), ("floor = physics + loss steps", floor), ("end to end (train)", end_to_end)]

@@ -59,6 +59,39 @@ class RunningNorm(nn.Module):
 
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
+PRECISIONS = ("float32", "bfloat16", "auto")
+
+
+def native_bfloat16(device: torch.device | str = "cpu") -> bool:
+    """Whether ``device`` computes bfloat16 matrix products in hardware (a CPU with AVX512-BF16 or AMX, as oneDNN
+    reports it; a CUDA device of compute capability 8.0 or above); elsewhere bfloat16 is emulated, slower than
+    float32."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported(including_emulation=False)
+    return device.type == "cpu" and torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
+
+
+def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.dtype | None:
+    """The hidden layers' compute dtype that ``model.precision`` names, for networks on ``device`` (``None``:
+    float32; see :class:`~torchrl_ahrs.value.critic.MLP`): ``float32``, ``bfloat16``, or ``auto``, which is
+    bfloat16 where ``device`` computes it in hardware (:func:`native_bfloat16`) and float32 elsewhere.
+
+    Example:
+        >>> compute_dtype("float32") is None
+        True
+        >>> compute_dtype("auto") in (None, torch.bfloat16)
+        True
+        >>> compute_dtype("half")
+        Traceback (most recent call last):
+        ...
+        ValueError: model.precision must be one of float32, bfloat16, auto, got 'half'
+    """
+    if precision not in PRECISIONS:
+        raise ValueError(f"model.precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "auto":
+        precision = "bfloat16" if native_bfloat16(device) else "float32"
+    return torch.bfloat16 if precision == "bfloat16" else None
 OBSERVATION_NORMS = ("running", "none")
 
 

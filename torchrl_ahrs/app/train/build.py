@@ -32,9 +32,15 @@ from torchrl_ahrs.envs.settings import TaskSettings
 from torchrl_ahrs.scheduling import RuleScheduler, build_scheduler
 from torchrl_ahrs.training.collector import ResumableCollector
 from torchrl_ahrs.training.loss import HybridClipPPOLoss
-from torchrl_ahrs.training.models import RunningNorm, build_actor, build_critic, make_observation_norm
+from torchrl_ahrs.training.models import (
+    RunningNorm,
+    build_actor,
+    build_critic,
+    compute_dtype,
+    make_observation_norm,
+)
 from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
-from torchrl_ahrs.value import WeightedMultiGAE
+from torchrl_ahrs.value import WeightedMultiGAE, set_compute_dtype
 
 
 @dataclass
@@ -112,6 +118,7 @@ class Networks:
     actor_norm: RunningNorm
     critic_norm: RunningNorm
     critic_key: str
+    hidden_dtype: torch.dtype | None = None  # model.precision resolved: the hidden layers' dtype, None = float32
 
 
 def build_networks(
@@ -162,7 +169,12 @@ def build_networks(
     if critic is not None:
         critic.to(device)
     critic_norm.to(device)
-    return Networks(actor, critic, actor_norm, critic_norm, critic_key)
+    # the hidden layers' precision, the same in collection, advantages and loss (a run saved before the key: float32)
+    hidden_dtype = compute_dtype(model.get("precision", "float32"), device)
+    for network in (actor, critic):
+        if network is not None:
+            set_compute_dtype(network, hidden_dtype)
+    return Networks(actor, critic, actor_norm, critic_norm, critic_key, hidden_dtype)
 
 
 def anchored(cfg: DictConfig, num_components: int) -> bool:
