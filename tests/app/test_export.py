@@ -2,6 +2,7 @@
 observations, in a fresh interpreter that cannot import torchrl_ahrs, torchrl or tensordict."""
 
 import json
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -88,6 +89,19 @@ def test_exported_files_act_like_the_trained_policy_without_the_package(trained_
         actions = np.load(result.directory / f"actions_{name}.npy")
         assert actions.shape == (observations.shape[0], 4)
         np.testing.assert_allclose(actions, expected, rtol=0, atol=1e-5, err_msg=name)
+
+
+@pytest.mark.slow
+def test_a_bfloat16_run_exports_float32_files_and_says_how_far_they_are_from_its_arithmetic(trained_run, tmp_path):
+    run = tmp_path / "bf16_run"
+    shutil.copytree(trained_run, run, ignore=shutil.ignore_patterns("export"))
+    config = run / "config.yaml"
+    config.write_text(config.read_text().replace("precision: float32", "precision: bfloat16"))
+    result = export(run, formats=["torchscript"], check_envs=4, check_steps=5)
+    assert result.max_difference["torchscript"] <= 1e-5  # the file is the float32 reading of the weights
+    metadata = json.loads((result.directory / "policy.json").read_text())
+    assert (metadata["trained_precision"], metadata["exported_precision"]) == ("bfloat16", "float32")
+    assert 0 < metadata["max_abs_difference_from_trained_precision"] < 0.05  # bfloat16's rounding, no more
 
 
 @pytest.mark.parametrize("distribution", ["tanh_normal", "normal"])

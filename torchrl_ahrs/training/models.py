@@ -69,7 +69,9 @@ def native_bfloat16(device: torch.device | str = "cpu") -> bool:
     device = torch.device(device)
     if device.type == "cuda":
         return torch.cuda.is_bf16_supported(including_emulation=False)
-    return device.type == "cpu" and torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    return (
+        device.type == "cpu" and torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    )
 
 
 def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.dtype | None:
@@ -92,6 +94,8 @@ def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.d
     if precision == "auto":
         precision = "bfloat16" if native_bfloat16(device) else "float32"
     return torch.bfloat16 if precision == "bfloat16" else None
+
+
 OBSERVATION_NORMS = ("running", "none")
 
 

@@ -7,6 +7,10 @@ Writes into ``<run>/export/``::
     policy.json   what the files expect and give: task, obs_dim, act_dim, action bounds, squash, and the
                   largest difference from the in-process policy measured at export
 
+The files compute in float32. A run trained with ``model.precision=bfloat16`` (or ``auto`` on a CPU with bfloat16)
+is exported as the float32 reading of its weights; ``policy.json`` records how far those actions lie from the
+bfloat16 arithmetic the run trained and evaluated with.
+
 Both files map a raw observation batch ``[B, obs_dim]`` float32 (as the environment emits it) to the
 deterministic action ``[B, act_dim]`` (:class:`~torchrl_ahrs.training.deploy.DeterministicPolicy`:
 normalisation and squashing inside); neither needs TorchRL or this package to load, TorchScript needs
@@ -35,6 +39,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.training.deploy import DeterministicPolicy
+from torchrl_ahrs.value import MLP, set_compute_dtype
 
 FORMATS = ("torchscript", "onnx")
 ONNX_PACKAGES = ("onnx", "onnxscript")  # torch.onnx.export (the dynamo exporter) needs both
@@ -52,6 +57,8 @@ class ExportResult:
     directory: Path
     files: dict[str, Path] = field(default_factory=dict)
     max_difference: dict[str, float] = field(default_factory=dict)
+    trained_precision: str = "float32"  # the hidden layers' dtype the run trained with (model.precision resolved)
+    precision_difference: float = 0.0  # largest |float32 action - action in trained_precision|
 
 
 def reference_observations(policy, num_envs: int = 16, steps: int = 20, seed: int = 12345) -> torch.Tensor:
@@ -106,12 +113,20 @@ def export(
     if unknown or not formats:
         raise ExportError(f"formats must be a non-empty list of {', '.join(FORMATS)}, got {list(formats)}")
     policy = load_policy(run_dir)
-    module = DeterministicPolicy.from_actor(policy.actor.cpu())
     observations = reference_observations(policy, check_envs, check_steps, seed)
+    trained_actions = actor_actions(policy.actor, observations)  # in the run's model.precision
+    trained_dtype = next((mlp.compute_dtype for mlp in policy.actor.modules() if isinstance(mlp, MLP)), None)
+    # the files compute in float32, which every runtime has; a run trained with bfloat16 hidden layers is exported
+    # as the float32 reading of its weights, checked against the actor in float32, and policy.json says how far the
+    # exported actions lie from the trained arithmetic's
+    set_compute_dtype(policy.actor, None)
+    module = DeterministicPolicy.from_actor(policy.actor.cpu())
     expected = actor_actions(policy.actor, observations)
     result = ExportResult(Path(output) if output else RunDirectory(run_dir).path / EXPORT_DIR)
+    result.trained_precision = str(trained_dtype or torch.float32).removeprefix("torch.")
     result.directory.mkdir(parents=True, exist_ok=True)
     result.max_difference["module"] = _max_difference(module(observations), expected)
+    result.precision_difference = _max_difference(expected, trained_actions)
 
     if "torchscript" in formats:
         path = result.directory / "policy.pt"
@@ -188,6 +203,9 @@ def _write_metadata(result: ExportResult, policy, module: DeterministicPolicy, o
         "squash": "tanh" if module.tanh else "clip",
         "files": {name: path.name for name, path in result.files.items()},
         "max_abs_difference_from_trained_policy": result.max_difference,
+        "trained_precision": result.trained_precision,  # the hidden layers' (value/critic.py MLP)
+        "exported_precision": "float32",
+        "max_abs_difference_from_trained_precision": result.precision_difference,  # 0 for a float32 run
         "tolerance": tolerance,
     }
     (result.directory / "policy.json").write_text(json.dumps(metadata, indent=2) + "\n")
@@ -204,5 +222,10 @@ def run(cfg: DictConfig) -> int:
         difference = result.max_difference.get(name)
         measured = f"max |action difference| {difference:.2e}" if difference is not None else "not run here"
         print(f"wrote {path} ({name}; {measured} on {cfg.check_envs * (cfg.check_steps + 1)} real observations)")
+    if result.precision_difference > 0:
+        print(
+            f"the files compute in float32; the run trained its hidden layers in {result.trained_precision}: their actions"
+            f" differ from the trained arithmetic's by up to {result.precision_difference:.2e}"
+        )
     print(f"wrote {result.directory / 'policy.json'}")
     return 0

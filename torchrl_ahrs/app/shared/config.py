@@ -16,7 +16,7 @@ from torchrl_ahrs.app.shared.run_dir import REDACTED, RunDirectory
 from torchrl_ahrs.app.shared.settings import override_task
 from torchrl_ahrs.envs.registry import available_tasks
 from torchrl_ahrs.training.loggers import BACKENDS
-from torchrl_ahrs.training.models import DISTRIBUTIONS, OBSERVATION_NORMS
+from torchrl_ahrs.training.models import DISTRIBUTIONS, OBSERVATION_NORMS, PRECISIONS
 from torchrl_ahrs.training.run import ADVANTAGE_PASSES, KL_ADAPTS
 from torchrl_ahrs.value.gae import MIXES
 
@@ -124,6 +124,8 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"model.observation_norm must be one of {', '.join(OBSERVATION_NORMS)}, got {cfg.model.observation_norm!r}"
         )
+    if cfg.model.get("precision", "float32") not in PRECISIONS:
+        raise ConfigError(f"model.precision must be one of {', '.join(PRECISIONS)}, got {cfg.model.precision!r}")
     ppo = cfg.ppo
     if ppo.get("value_norm") not in (None, False, True, "running", "popart"):
         raise ConfigError(f"ppo.value_norm must be running, popart or null, got {ppo.get('value_norm')!r}")

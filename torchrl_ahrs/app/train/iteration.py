@@ -49,6 +49,7 @@ from torchrl_ahrs.app.train.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.loggers import ConsoleProgress, build_logger
 from torchrl_ahrs.training.loop import learn
+from torchrl_ahrs.training.models import native_bfloat16
 from torchrl_ahrs.training.run import LoopSettings, Progress, TrainingRun
 
 log = logging.getLogger("torchrl_ahrs.train")
@@ -99,6 +100,18 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if physics != devices.envs:  # e.g. JAX on a GPU with trainer.device=cpu
         log.warning("MJX steps on %s, its env on %s: every control step copies the state across", physics, devices.envs)
     networks = build_networks(cfg, make_envs, device=devices.learner)
+    precision = cfg.model.get("precision", "float32")
+    log.info(
+        "hidden layers in %s (model.precision=%s)",
+        str(networks.hidden_dtype or torch.float32).removeprefix("torch."),
+        precision,
+    )
+    if precision == "bfloat16" and not native_bfloat16(devices.learner):
+        log.warning(
+            "model.precision=bfloat16, but %s has no bfloat16 arithmetic in hardware: it is emulated, slower than"
+            " float32 (model.precision=auto chooses float32 here)",
+            devices.learner,
+        )
     estimator, loss = build_estimator_and_loss(cfg, networks, components, devices.learner)
     optimizer = build_optimizer(cfg, loss, networks.critic)  # Adam; the critic's own group with ppo.kl_adapts=actor
     augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)  # ppo.mirror: each minibatch + its image

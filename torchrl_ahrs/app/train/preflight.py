@@ -11,7 +11,6 @@ exit status 2. What each catches, and what happened without it:
 * a value that is not a finite number (``seed=1e400``, ``trainer.lr=nan``) or an interpolation that cannot be
   resolved (``${oc.env:NOPE}``): tracebacks deep inside the run otherwise;
 * ``model.hidden_sizes=[]``: a linear policy and critic, trained without a word;
-* a ``model.precision`` that names no precision: a traceback from inside the network builder;
 * a logger backend whose package is missing: the run wrote no metrics for it and exited 0;
 * a missing API key for the LLM provider: every decision failed, fell back, and the weights never moved;
 * a reward component whose environment term never appears, or components that do not add up to the native
@@ -39,7 +38,6 @@ from omegaconf.errors import OmegaConfBaseException
 
 from torchrl_ahrs.app.shared.config import dotted_keys
 from torchrl_ahrs.app.shared.errors import ConfigError
-from torchrl_ahrs.training.models import PRECISIONS
 
 __all__ = [
     "PreflightError",
@@ -184,8 +182,6 @@ def check_config(cfg: DictConfig) -> None:
             raise PreflightError(
                 f"model.hidden_sizes must list at least one positive width (e.g. [64,64]), got {list(sizes or [])}"
             )
-    if model is not None and model.get("precision", "float32") not in PRECISIONS:
-        raise PreflightError(f"model.precision must be one of {', '.join(PRECISIONS)}, got {model.precision!r}")
     logger = cfg.get("logger")
     if logger is not None:
         check_logger_packages(logger.get("backends") or ())
