@@ -10,7 +10,7 @@ from torchrl_ahrs.app.shared.config import validate_config
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.train.build import build_networks, env_factory
 from torchrl_ahrs.training.models import compute_dtype, native_bfloat16
-from torchrl_ahrs.value import MLP, MultiHeadCritic, make_mlp, set_compute_dtype
+from torchrl_ahrs.value import AutocastMLP, MultiHeadCritic, make_mlp, set_compute_dtype
 
 BFLOAT16_STEP = 2.0**-8  # bfloat16 keeps 8 significant bits: a relative rounding step of 2^-8
 
@@ -52,7 +52,7 @@ def test_set_compute_dtype_reaches_every_mlp_of_a_critic_with_separate_heads_and
     x = torch.randn(20, 8)
     exact = critic(x)
     set_compute_dtype(critic, torch.bfloat16)
-    mlps = [module for module in critic.modules() if isinstance(module, MLP)]
+    mlps = [module for module in critic.modules() if isinstance(module, AutocastMLP)]
     assert len(mlps) == 2 and all(mlp.compute_dtype == torch.bfloat16 for mlp in mlps)
     approximate = critic(x)
     assert approximate.dtype == torch.float32 and approximate.shape == exact.shape == (20, 4)
@@ -71,7 +71,12 @@ def test_auto_is_bfloat16_exactly_where_the_cpu_computes_it_in_hardware():
 def test_the_run_builds_actor_and_both_critics_in_the_configured_precision(precision, expected):
     cfg = make_cfg("task=point_reach", "method=ahrs", "ppo.mix=anchored", f"model.precision={precision}")
     networks = build_networks(cfg, env_factory(cfg))
-    mlps = [module for net in (networks.actor, networks.critic) for module in net.modules() if isinstance(module, MLP)]
+    mlps = [
+        module
+        for net in (networks.actor, networks.critic)
+        for module in net.modules()
+        if isinstance(module, AutocastMLP)
+    ]
     assert len(mlps) == 3  # the actor's mean, the K-head critic, the anchor
     assert networks.hidden_dtype == expected and all(mlp.compute_dtype == expected for mlp in mlps)
 

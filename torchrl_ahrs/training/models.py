@@ -59,6 +59,7 @@ class RunningNorm(nn.Module):
 
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
+OBSERVATION_NORMS = ("running", "none")
 PRECISIONS = ("float32", "bfloat16", "auto")
 
 
@@ -76,7 +77,7 @@ def native_bfloat16(device: torch.device | str = "cpu") -> bool:
 
 def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.dtype | None:
     """The hidden layers' compute dtype that ``model.precision`` names, for networks on ``device`` (``None``:
-    float32; see :class:`~torchrl_ahrs.value.critic.MLP`): ``float32``, ``bfloat16``, or ``auto``, which is
+    float32; see :class:`~torchrl_ahrs.value.critic.AutocastMLP`): ``float32``, ``bfloat16``, or ``auto``, which is
     bfloat16 where ``device`` computes it in hardware (:func:`native_bfloat16`) and float32 elsewhere.
 
     Example:
@@ -94,9 +95,6 @@ def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.d
     if precision == "auto":
         precision = "bfloat16" if native_bfloat16(device) else "float32"
     return torch.bfloat16 if precision == "bfloat16" else None
-
-
-OBSERVATION_NORMS = ("running", "none")
 
 
 def make_observation_norm(size: int, kind: str = "running") -> RunningNorm:

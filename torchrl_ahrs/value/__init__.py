@@ -1,6 +1,6 @@
 """Multi-head critics and the weighted per-component advantage estimator."""
 
-from torchrl_ahrs.value.critic import MLP, HeadwiseLinear, MultiHeadCritic, make_mlp, set_compute_dtype
+from torchrl_ahrs.value.critic import AutocastMLP, HeadwiseLinear, MultiHeadCritic, make_mlp, set_compute_dtype
 from torchrl_ahrs.value.functional import (
     effective_shares,
     mix_advantages,
@@ -11,7 +11,7 @@ from torchrl_ahrs.value.functional import (
 from torchrl_ahrs.value.gae import WeightedMultiGAE
 
 __all__ = [
-    "MLP",
+    "AutocastMLP",
     "HeadwiseLinear",
     "MultiHeadCritic",
     "WeightedMultiGAE",

@@ -39,7 +39,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.training.deploy import DeterministicPolicy
-from torchrl_ahrs.value import MLP, set_compute_dtype
+from torchrl_ahrs.value import AutocastMLP, set_compute_dtype
 
 FORMATS = ("torchscript", "onnx")
 ONNX_PACKAGES = ("onnx", "onnxscript")  # torch.onnx.export (the dynamo exporter) needs both
@@ -115,7 +115,7 @@ def export(
     policy = load_policy(run_dir)
     observations = reference_observations(policy, check_envs, check_steps, seed)
     trained_actions = actor_actions(policy.actor, observations)  # in the run's model.precision
-    trained_dtype = next((mlp.compute_dtype for mlp in policy.actor.modules() if isinstance(mlp, MLP)), None)
+    trained_dtype = next((mlp.compute_dtype for mlp in policy.actor.modules() if isinstance(mlp, AutocastMLP)), None)
     # the files compute in float32, which every runtime has; a run trained with bfloat16 hidden layers is exported
     # as the float32 reading of its weights, checked against the actor in float32, and policy.json says how far the
     # exported actions lie from the trained arithmetic's
@@ -203,7 +203,7 @@ def _write_metadata(result: ExportResult, policy, module: DeterministicPolicy, o
         "squash": "tanh" if module.tanh else "clip",
         "files": {name: path.name for name, path in result.files.items()},
         "max_abs_difference_from_trained_policy": result.max_difference,
-        "trained_precision": result.trained_precision,  # the hidden layers' (value/critic.py MLP)
+        "trained_precision": result.trained_precision,  # the hidden layers' (value/critic.py AutocastMLP)
         "exported_precision": "float32",
         "max_abs_difference_from_trained_precision": result.precision_difference,  # 0 for a float32 run
         "tolerance": tolerance,
