@@ -4,7 +4,8 @@
         --arm "ppo=benchmarks/results/issue26_probes/cassie_r1[236]_ppo_klactor_s*" \\
         --arm "mcppo=benchmarks/results/issue26_probes/cassie_r1[036]_mcppo_klactor_s*"
 
-Each ``--arm name=pattern[,pattern...]`` names globs of run directories that hold ``evaluation.json`` (written by
+Each ``--arm name=pattern[,pattern...]`` names globs of run directories that hold ``evaluation.json`` (or the file
+``--evaluation`` names, e.g. ``evaluation_seed4242.json`` for another evaluation seed; written by
 ``python -m torchrl_ahrs.evaluate run=<dir>``) and ``config.yaml`` (the training seed); quote it, so that the
 script, not the shell, expands it and an arm that matches nothing is an error. Printed:
 
@@ -55,10 +56,10 @@ class Evaluated:
     final_total: float  # mean reward/total per 1 000 steps over the batches that start in the last bin
 
 
-def read_run(run_dir: Path, metric: str, width: int) -> Evaluated:
-    """Reads ``evaluation.json``, ``config.yaml`` and the ``reward/total`` scalars of one run (``width``: the
+def read_run(run_dir: Path, metric: str, width: int, evaluation_file: str = "evaluation.json") -> Evaluated:
+    """Reads ``evaluation_file``, ``config.yaml`` and the ``reward/total`` scalars of one run (``width``: the
     training total's bin); a missing file or metric is a one-line error."""
-    evaluation_path, config_path = run_dir / "evaluation.json", run_dir / "config.yaml"
+    evaluation_path, config_path = run_dir / evaluation_file, run_dir / "config.yaml"
     for path in (evaluation_path, config_path):
         if not path.exists():
             raise SystemExit(
@@ -116,11 +117,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--bar", type=float, default=None, help="the metric's target (with every episode full)")
     parser.add_argument("--terms", default="tracking_lin_vel,tracking_ang_vel", help="components to show, comma")
     parser.add_argument("--bin", type=int, default=500_000, help="frames of the last bin of the training total")
+    parser.add_argument(
+        "--evaluation", default="evaluation.json", help="the file in each run dir (evaluation_seed4242.json: another seed)"
+    )
     parser.add_argument("--stuck", default=None, help="term=value: count the runs whose term's return is below value")
     args = parser.parse_args(argv)
     stuck_term, stuck_below = parse_stuck(args.stuck) if args.stuck is not None else (None, math.nan)
     arms = dict(parse_arm(text) for text in args.arm)
-    evaluated = {name: [read_run(run, args.metric, args.bin) for run in runs] for name, runs in arms.items()}
+    evaluated = {name: [read_run(run, args.metric, args.bin, args.evaluation) for run in runs] for name, runs in arms.items()}
     if stuck_term is not None:  # checked before anything is printed
         for run in itertools.chain.from_iterable(evaluated.values()):
             if stuck_term not in run.returns:

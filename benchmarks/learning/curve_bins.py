@@ -8,6 +8,11 @@ and the episodes ended per batch (fewer = longer episodes). The RESULTS.md Cassi
 ``--scalar <name>`` bins any other logged scalar instead, as logged (e.g. ``--scalar train/entropy``: the policy's
 entropy per batch, which round 19 of issue 26 compares between runs that walk and runs that do not).
 
+``--reaches 10,20`` prints instead, per run, where the training return first reaches each value: the frames and the
+minutes of training (the sum of each batch's frames over its logged ``frames_per_second``) at the first batch where
+the mean of ``return/total`` over the episodes that ended in the trailing ``--window`` frames (default 100k) is at
+least that value. RESULTS.md's session-35 table quotes these.
+
 A batch belongs to the bin where its frames start: rows are logged at the frames collected *after* the batch,
 so the last batch of a 2.5M-frame run (logged at 2 500 608) counts in "2-2.5M", not in a bin of its own.
 """
@@ -44,13 +49,47 @@ def bin_means(rows: list[tuple[int, float]], width: int) -> dict[int, float]:
     return {start: sum(values) / len(values) for start, values in sorted(sums.items())}
 
 
+def first_reaches(run_dir: Path, values: list[float], window: int) -> dict[float, tuple[int, float] | None]:
+    """Per value, ``(frames, minutes)`` where the trailing ``window``-frame, episode-weighted mean of
+    ``return/total`` first reaches it (``None``: never), minutes summed from ``frames_per_second``."""
+    returns = dict(read_scalar(run_dir, "return/total"))  # frames after a batch -> mean return of its episodes
+    ended = dict(read_scalar(run_dir, "episodes"))  # frames after a batch -> episodes that ended in it
+    seconds, before, elapsed = 0.0, 0, {}
+    for frames, rate in read_scalar(run_dir, "frames_per_second"):
+        seconds += (frames - before) / rate  # t_b = sum over batches of frames_b / (frames/s)_b
+        before, elapsed[frames] = frames, seconds
+    reached: dict[float, tuple[int, float] | None] = dict.fromkeys(values)
+    for frames in elapsed:
+        inside = [end for end in returns if frames - window < end <= frames]
+        count = sum(ended.get(end, 0) for end in inside)
+        if not count:
+            continue
+        mean = sum(returns[end] * ended.get(end, 0) for end in inside) / count  # episode-weighted mean return
+        for value in values:
+            if reached[value] is None and mean >= value:
+                reached[value] = (frames, elapsed[frames] / 60)
+    return reached
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--term", default="tracking_lin_vel")
     parser.add_argument("--scalar", default=None, help="bin metrics/scalars/<scalar>.csv as logged, not a reward term")
     parser.add_argument("--bin", type=int, default=500_000)
+    parser.add_argument("--reaches", default=None, help="comma-separated training returns: where each is first reached")
+    parser.add_argument("--window", type=int, default=100_000, help="with --reaches: the trailing frames averaged")
     args = parser.parse_args()
+    if args.reaches:
+        values = [float(value) for value in args.reaches.split(",")]
+        for run_dir in args.runs:
+            reached = first_reaches(run_dir, values, args.window)
+            cells = [
+                f"{value:g}: " + (f"{hit[0] / 1e6:.2f}M, {hit[1]:.1f} min" if hit else "not reached")
+                for value, hit in reached.items()
+            ]
+            print(f"{run_dir.name}: " + " | ".join(cells))
+        return
     name, scale = (args.scalar, 1.0) if args.scalar else (f"reward/{args.term}", 1e3)  # rewards print in 10^-3
     for run_dir in args.runs:
         logged = read_scalar(run_dir, name)  # one row per batch, at the frames after it
