@@ -118,13 +118,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--terms", default="tracking_lin_vel,tracking_ang_vel", help="components to show, comma")
     parser.add_argument("--bin", type=int, default=500_000, help="frames of the last bin of the training total")
     parser.add_argument(
-        "--evaluation", default="evaluation.json", help="the file in each run dir (evaluation_seed4242.json: another seed)"
+        "--evaluation",
+        default="evaluation.json",
+        help="the file in each run dir (evaluation_seed4242.json: another seed)",
     )
     parser.add_argument("--stuck", default=None, help="term=value: count the runs whose term's return is below value")
     args = parser.parse_args(argv)
     stuck_term, stuck_below = parse_stuck(args.stuck) if args.stuck is not None else (None, math.nan)
     arms = dict(parse_arm(text) for text in args.arm)
-    evaluated = {name: [read_run(run, args.metric, args.bin, args.evaluation) for run in runs] for name, runs in arms.items()}
+    evaluated = {
+        name: [read_run(run, args.metric, args.bin, args.evaluation) for run in runs] for name, runs in arms.items()
+    }
     if stuck_term is not None:  # checked before anything is printed
         for run in itertools.chain.from_iterable(evaluated.values()):
             if stuck_term not in run.returns:
