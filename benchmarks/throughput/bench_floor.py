@@ -65,7 +65,7 @@ VARIANTS: dict[str, list[str]] = {
     "half": ["model.hidden_sizes=[256,128,64]"],  # half of every width of Cassie's [512, 256, 128] (RESULTS round 21)
     "bf16": [
         "model.precision=bfloat16"
-    ],  # the hidden layers' matrix products in bfloat16 (value/critic.py AutocastMLP)
+    ],  # the hidden layers' matrix products in bfloat16 (training/models.py AutocastMLP)
     "fp32": ["model.precision=float32"],
 }
 

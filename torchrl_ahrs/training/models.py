@@ -11,7 +11,7 @@ from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.modules import IndependentNormal, ProbabilisticActor, TanhNormal
 
-from torchrl_ahrs.value import MultiHeadCritic, make_mlp
+from torchrl_ahrs.value import HeadwiseLinear, MultiHeadCritic, make_mlp
 
 
 class RunningNorm(nn.Module):
@@ -63,6 +63,67 @@ OBSERVATION_NORMS = ("running", "none")
 PRECISIONS = ("float32", "bfloat16", "auto")
 
 
+class AutocastMLP(nn.Sequential):
+    """An MLP's layers applied in order, the output layer last; ``compute_dtype`` sets the precision of all the
+    others.
+
+    With ``compute_dtype=None`` every layer computes in its parameters' dtype (float32). With ``torch.bfloat16``
+    the layers before the output layer run under :func:`torch.autocast` (their matrix products in bfloat16 from
+    float32 parameters, gradients into those float32 parameters), and the output layer runs in float32 on the
+    float32 cast of the last hidden activations. On a CPU with AVX512-BF16 a training step of Cassie's
+    [512, 256, 128] network costs about a third of float32's (benchmarks/RESULTS.md, session 35), while the outputs
+    (an action mean, a value) keep float32's resolution. It holds the very layers of the MLP it replaces
+    (:func:`set_compute_dtype`), so ``state_dict`` is the same in every precision: a checkpoint loads into either.
+
+    Shapes: ``[*B, in] -> [*B, out]``, float32 out.
+
+    Example:
+        >>> mlp = AutocastMLP(nn.Linear(4, 8), nn.ELU(), nn.Linear(8, 2))
+        >>> x = torch.randn(5, 4)
+        >>> exact = mlp(x)
+        >>> mlp.compute_dtype = torch.bfloat16
+        >>> mlp(x).dtype, bool((mlp(x) - exact).abs().max() < 0.05)
+        (torch.float32, True)
+    """
+
+    compute_dtype: torch.dtype | None = None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.compute_dtype is None:
+            return super().forward(x)
+        *hidden, output = self
+        with torch.autocast(x.device.type, dtype=self.compute_dtype):
+            for layer in hidden:
+                x = layer(x)
+        return output(x.float())
+
+
+def set_compute_dtype(network: nn.Module, dtype: torch.dtype | None) -> nn.Module:
+    """Runs every MLP inside ``network`` (an actor, a critic) with its hidden layers in ``dtype`` (``None``:
+    float32); returns ``network``.
+
+    An MLP is an ``nn.Sequential`` whose last layer is linear (``nn.Linear``, or the critic's
+    :class:`~torchrl_ahrs.value.critic.HeadwiseLinear`): :func:`~torchrl_ahrs.value.critic.make_mlp`'s and the
+    separate heads of :class:`~torchrl_ahrs.value.critic.MultiHeadCritic`. Each becomes an :class:`AutocastMLP`
+    holding the same layers, so parameters, and the optimiser that holds them, are untouched; the actor's
+    ``Sequential(norm, mlp, scale)`` ends in its scale and is left as it is.
+
+    Example:
+        >>> critic = MultiHeadCritic(8, 3, [16], anchor_head=True)
+        >>> _ = set_compute_dtype(critic, torch.bfloat16)
+        >>> [(name, mlp.compute_dtype) for name, mlp in critic.named_modules() if isinstance(mlp, AutocastMLP)]
+        [('anchor', torch.bfloat16), ('net', torch.bfloat16)]
+    """
+    for parent in list(network.modules()):
+        for name, child in list(parent.named_children()):
+            if isinstance(child, nn.Sequential) and len(child) and isinstance(child[-1], (nn.Linear, HeadwiseLinear)):
+                if not isinstance(child, AutocastMLP):
+                    child = AutocastMLP(*child)  # the same layer objects, under the same name
+                    setattr(parent, name, child)
+                child.compute_dtype = dtype
+    return network
+
+
 def native_bfloat16(device: torch.device | str = "cpu") -> bool:
     """Whether ``device`` computes bfloat16 matrix products in hardware (a CPU with AVX512-BF16 or AMX, as oneDNN
     reports it; a CUDA device of compute capability 8.0 or above); elsewhere bfloat16 is emulated, slower than
@@ -77,7 +138,7 @@ def native_bfloat16(device: torch.device | str = "cpu") -> bool:
 
 def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.dtype | None:
     """The hidden layers' compute dtype that ``model.precision`` names, for networks on ``device`` (``None``:
-    float32; see :class:`~torchrl_ahrs.value.critic.AutocastMLP`): ``float32``, ``bfloat16``, or ``auto``, which is
+    float32; see :class:`AutocastMLP`): ``float32``, ``bfloat16``, or ``auto``, which is
     bfloat16 where ``device`` computes it in hardware (:func:`native_bfloat16`) and float32 elsewhere.
 
     Example:

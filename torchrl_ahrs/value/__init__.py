@@ -1,6 +1,6 @@
 """Multi-head critics and the weighted per-component advantage estimator."""
 
-from torchrl_ahrs.value.critic import AutocastMLP, HeadwiseLinear, MultiHeadCritic, make_mlp, set_compute_dtype
+from torchrl_ahrs.value.critic import HeadwiseLinear, MultiHeadCritic, make_mlp
 from torchrl_ahrs.value.functional import (
     effective_shares,
     mix_advantages,
@@ -11,7 +11,6 @@ from torchrl_ahrs.value.functional import (
 from torchrl_ahrs.value.gae import WeightedMultiGAE
 
 __all__ = [
-    "AutocastMLP",
     "HeadwiseLinear",
     "MultiHeadCritic",
     "WeightedMultiGAE",
@@ -20,6 +19,5 @@ __all__ = [
     "mix_advantages",
     "normalize_components",
     "scale_by",
-    "set_compute_dtype",
     "stack_components",
 ]

@@ -11,58 +11,10 @@ from torch import nn
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
-class AutocastMLP(nn.Sequential):
-    """Layers applied in order, the output layer last; ``compute_dtype`` sets the precision of all the others.
-
-    With ``compute_dtype=None`` (the default) every layer computes in its parameters' dtype (float32). With
-    ``torch.bfloat16`` the layers before the output layer run under :func:`torch.autocast` (their matrix products
-    in bfloat16 from float32 parameters, gradients into those float32 parameters), and the output layer runs in
-    float32 on the float32 cast of the last hidden activations. On a CPU with AVX512-BF16 a training step of
-    Cassie's [512, 256, 128] network costs about a third of float32's (benchmarks/RESULTS.md, session 35), while
-    the outputs (an action mean, a value) keep float32's resolution. The parameters, and so ``state_dict``, are
-    the same for every ``compute_dtype``: a checkpoint loads into either.
-
-    Shapes: ``[*B, in] -> [*B, out]``, float32 out.
-
-    Example:
-        >>> mlp = AutocastMLP(nn.Linear(4, 8), nn.ELU(), nn.Linear(8, 2))
-        >>> x = torch.randn(5, 4)
-        >>> exact = mlp(x)
-        >>> mlp.compute_dtype = torch.bfloat16
-        >>> mlp(x).dtype, bool((mlp(x) - exact).abs().max() < 0.05)
-        (torch.float32, True)
-    """
-
-    compute_dtype: torch.dtype | None = None
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if self.compute_dtype is None:
-            return super().forward(x)
-        *hidden, output = self
-        with torch.autocast(x.device.type, dtype=self.compute_dtype):
-            for layer in hidden:
-                x = layer(x)
-        return output(x.float())
-
-
-def set_compute_dtype(module: nn.Module, dtype: torch.dtype | None) -> nn.Module:
-    """Sets ``compute_dtype`` on every :class:`AutocastMLP` inside ``module`` (an actor, a critic); returns ``module``.
-
-    Example:
-        >>> critic = MultiHeadCritic(8, 3, [16], anchor_head=True)
-        >>> _ = set_compute_dtype(critic, torch.bfloat16)
-        >>> [mlp.compute_dtype for mlp in critic.modules() if isinstance(mlp, AutocastMLP)]
-        [torch.bfloat16, torch.bfloat16]
-    """
-    for child in module.modules():
-        if isinstance(child, AutocastMLP):
-            child.compute_dtype = dtype
-    return module
-
-
-def make_mlp(in_features: int, hidden_sizes: Sequence[int], out_features: int, activation: str = "tanh") -> AutocastMLP:
-    """A plain MLP ``in -> hidden... -> out`` with orthogonal init (PPO's usual choice), in float32 until
-    :func:`set_compute_dtype` says otherwise."""
+def make_mlp(
+    in_features: int, hidden_sizes: Sequence[int], out_features: int, activation: str = "tanh"
+) -> nn.Sequential:
+    """A plain MLP ``in -> hidden... -> out`` with orthogonal init (PPO's usual choice)."""
     if activation not in ACTIVATIONS:
         raise ValueError(f"unknown activation {activation!r}; choose from {sorted(ACTIVATIONS)}")
     layers: list[nn.Module] = []
@@ -71,7 +23,7 @@ def make_mlp(in_features: int, hidden_sizes: Sequence[int], out_features: int, a
         layers += [_orthogonal(nn.Linear(width, hidden), math.sqrt(2)), ACTIVATIONS[activation]()]
         width = hidden
     layers.append(_orthogonal(nn.Linear(width, out_features), 1.0))
-    return AutocastMLP(*layers)
+    return nn.Sequential(*layers)
 
 
 def _orthogonal(layer: nn.Linear, gain: float) -> nn.Linear:
@@ -161,7 +113,7 @@ class MultiHeadCritic(nn.Module):
             layer = HeadwiseLinear(num_heads, width_in, width_out, math.sqrt(2), shared_input=depth == 0)
             layers += [layer, ACTIVATIONS[activation]()]
         layers.append(HeadwiseLinear(num_heads, widths[-1], 1, 1.0, shared_input=not hidden_sizes))
-        self.net = AutocastMLP(*layers)
+        self.net = nn.Sequential(*layers)
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         values = self.net(observation)

@@ -39,7 +39,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.training.deploy import DeterministicPolicy
-from torchrl_ahrs.value import AutocastMLP, set_compute_dtype
+from torchrl_ahrs.training.models import AutocastMLP, set_compute_dtype
 
 FORMATS = ("torchscript", "onnx")
 ONNX_PACKAGES = ("onnx", "onnxscript")  # torch.onnx.export (the dynamo exporter) needs both
@@ -203,7 +203,7 @@ def _write_metadata(result: ExportResult, policy, module: DeterministicPolicy, o
         "squash": "tanh" if module.tanh else "clip",
         "files": {name: path.name for name, path in result.files.items()},
         "max_abs_difference_from_trained_policy": result.max_difference,
-        "trained_precision": result.trained_precision,  # the hidden layers' (value/critic.py AutocastMLP)
+        "trained_precision": result.trained_precision,  # the hidden layers' (training/models.py AutocastMLP)
         "exported_precision": "float32",
         "max_abs_difference_from_trained_precision": result.precision_difference,  # 0 for a float32 run
         "tolerance": tolerance,

@@ -38,9 +38,10 @@ from torchrl_ahrs.training.models import (
     build_critic,
     compute_dtype,
     make_observation_norm,
+    set_compute_dtype,
 )
 from torchrl_ahrs.training.value_norm import denormalized_critic, make_value_norm
-from torchrl_ahrs.value import WeightedMultiGAE, set_compute_dtype
+from torchrl_ahrs.value import WeightedMultiGAE
 
 
 @dataclass

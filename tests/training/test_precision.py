@@ -4,21 +4,20 @@ float32 parameters, gradients and outputs; float32 is the plain network, bit for
 import pytest
 import torch
 from conftest import make_cfg
-from torch import nn
 
 from torchrl_ahrs.app.shared.config import validate_config
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.train.build import build_networks, env_factory
-from torchrl_ahrs.training.models import compute_dtype, native_bfloat16
-from torchrl_ahrs.value import AutocastMLP, MultiHeadCritic, make_mlp, set_compute_dtype
+from torchrl_ahrs.training.models import AutocastMLP, compute_dtype, native_bfloat16, set_compute_dtype
+from torchrl_ahrs.value import MultiHeadCritic, make_mlp
 
 BFLOAT16_STEP = 2.0**-8  # bfloat16 keeps 8 significant bits: a relative rounding step of 2^-8
 
 
 def test_a_float32_mlp_is_the_plain_sequential_bit_for_bit():
     torch.manual_seed(0)
-    mlp = make_mlp(6, [32, 16], 3, "elu")
-    plain = nn.Sequential(*mlp)
+    plain = make_mlp(6, [32, 16], 3, "elu")
+    mlp = AutocastMLP(*plain)
     x = torch.randn(50, 6)
     assert torch.equal(mlp(x), plain(x))
     assert list(mlp.state_dict()) == list(plain.state_dict())  # checkpoints load into either
@@ -26,7 +25,7 @@ def test_a_float32_mlp_is_the_plain_sequential_bit_for_bit():
 
 def test_bfloat16_hidden_layers_follow_float32_within_rounding_and_train_float32_parameters():
     torch.manual_seed(0)
-    mlp = make_mlp(12, [64, 64], 4, "elu")
+    mlp = AutocastMLP(*make_mlp(12, [64, 64], 4, "elu"))
     x = torch.randn(256, 12)
     exact = mlp(x)
     exact_grads = torch.autograd.grad(exact.square().sum(), list(mlp.parameters()))
@@ -51,7 +50,9 @@ def test_set_compute_dtype_reaches_every_mlp_of_a_critic_with_separate_heads_and
     critic = MultiHeadCritic(8, 3, [16, 16], "elu", separate_heads=True, anchor_head=True)
     x = torch.randn(20, 8)
     exact = critic(x)
+    parameters = list(critic.parameters())
     set_compute_dtype(critic, torch.bfloat16)
+    assert all(a is b for a, b in zip(critic.parameters(), parameters, strict=True))  # the optimiser's, untouched
     mlps = [module for module in critic.modules() if isinstance(module, AutocastMLP)]
     assert len(mlps) == 2 and all(mlp.compute_dtype == torch.bfloat16 for mlp in mlps)
     approximate = critic(x)
@@ -77,7 +78,7 @@ def test_the_run_builds_actor_and_both_critics_in_the_configured_precision(preci
         for module in net.modules()
         if isinstance(module, AutocastMLP)
     ]
-    assert len(mlps) == 3  # the actor's mean, the K-head critic, the anchor
+    assert len(mlps) == 3  # the actor's mean, the K-head critic, the anchor; not the Sequentials around them
     assert networks.hidden_dtype == expected and all(mlp.compute_dtype == expected for mlp in mlps)
 
 
