@@ -63,9 +63,8 @@ VARIANTS: dict[str, list[str]] = {
     "threads1": ["trainer.torch_threads=1"],
     "threads2": ["trainer.torch_threads=2"],  # a second intra-op thread for the networks
     "half": ["model.hidden_sizes=[256,128,64]"],  # half of every width of Cassie's [512, 256, 128] (RESULTS round 21)
-    "bf16": [
-        "model.precision=bfloat16"
-    ],  # the hidden layers' matrix products in bfloat16 (training/models.py AutocastMLP)
+    # the hidden layers' matrix products in bfloat16 (training/models.py, AutocastMLP), and in float32
+    "bf16": ["model.precision=bfloat16"],
     "fp32": ["model.precision=float32"],
 }
 
