@@ -54,6 +54,7 @@ from torchrl_ahrs.app.train.build import (
     env_factory,
 )
 from torchrl_ahrs.training.loop import MINIBATCH_KEYS
+from torchrl_ahrs.training.models import compute_dtype, precision_name
 
 # what --variants accepts: a name -> the Hydra overrides it adds (names join with "+": once+threads2)
 VARIANTS: dict[str, list[str]] = {
@@ -186,7 +187,7 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         f"task {task}, method {method}, variant {variant} ({overrides}): {trainer.num_envs} envs x"
         f" {trainer.frames_per_batch // trainer.num_envs} steps = {trainer.frames_per_batch} frames per batch,"
         f" {trainer.num_epochs} epochs x {num_minibatches(cfg)} minibatches of {trainer.mini_batch_size},"
-        f" {list(model.hidden_sizes)} {model.activation} in {model.get('precision', 'float32')},"
+        f" {list(model.hidden_sizes)} {model.activation} in {precision_name(compute_dtype(model.precision))},"
         f" torch threads {trainer.torch_threads};"
         f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )

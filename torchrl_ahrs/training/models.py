@@ -158,6 +158,16 @@ def compute_dtype(precision: str, device: torch.device | str = "cpu") -> torch.d
     return torch.bfloat16 if precision == "bfloat16" else None
 
 
+def precision_name(dtype: torch.dtype | None) -> str:
+    """The ``model.precision`` value that :func:`compute_dtype` resolved to ``dtype``, for logs and files.
+
+    Example:
+        >>> precision_name(None), precision_name(torch.bfloat16)
+        ('float32', 'bfloat16')
+    """
+    return str(dtype or torch.float32).removeprefix("torch.")
+
+
 def make_observation_norm(size: int, kind: str = "running") -> RunningNorm:
     """The observation normaliser ``model.observation_norm`` names: ``running`` standardises with running
     statistics clipped to ±10; ``none`` passes the observation through as the task scales it (legged_gym's fixed

@@ -39,7 +39,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_ahrs.app.evaluate.policy import EvaluationError, load_policy
 from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.training.deploy import DeterministicPolicy
-from torchrl_ahrs.training.models import AutocastMLP, set_compute_dtype
+from torchrl_ahrs.training.models import AutocastMLP, precision_name, set_compute_dtype
 
 FORMATS = ("torchscript", "onnx")
 ONNX_PACKAGES = ("onnx", "onnxscript")  # torch.onnx.export (the dynamo exporter) needs both
@@ -123,7 +123,7 @@ def export(
     module = DeterministicPolicy.from_actor(policy.actor.cpu())
     expected = actor_actions(policy.actor, observations)
     result = ExportResult(Path(output) if output else RunDirectory(run_dir).path / EXPORT_DIR)
-    result.trained_precision = str(trained_dtype or torch.float32).removeprefix("torch.")
+    result.trained_precision = precision_name(trained_dtype)
     result.directory.mkdir(parents=True, exist_ok=True)
     result.max_difference["module"] = _max_difference(module(observations), expected)
     result.precision_difference = _max_difference(expected, trained_actions)

@@ -49,7 +49,7 @@ from torchrl_ahrs.app.train.video import register_video_log
 from torchrl_ahrs.envs.registry import simulation_device
 from torchrl_ahrs.training.loggers import ConsoleProgress, build_logger
 from torchrl_ahrs.training.loop import learn
-from torchrl_ahrs.training.models import native_bfloat16
+from torchrl_ahrs.training.models import native_bfloat16, precision_name
 from torchrl_ahrs.training.run import LoopSettings, Progress, TrainingRun
 
 log = logging.getLogger("torchrl_ahrs.train")
@@ -101,11 +101,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         log.warning("MJX steps on %s, its env on %s: every control step copies the state across", physics, devices.envs)
     networks = build_networks(cfg, make_envs, device=devices.learner)
     precision = cfg.model.get("precision", "float32")
-    log.info(
-        "hidden layers in %s (model.precision=%s)",
-        str(networks.hidden_dtype or torch.float32).removeprefix("torch."),
-        precision,
-    )
+    log.info("hidden layers in %s (model.precision=%s)", precision_name(networks.hidden_dtype), precision)
     if precision == "bfloat16" and not native_bfloat16(devices.learner):
         log.warning(
             "model.precision=bfloat16, but %s has no bfloat16 arithmetic in hardware: it is emulated, slower than"
