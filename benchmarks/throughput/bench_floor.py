@@ -45,7 +45,7 @@ from hydra import compose, initialize_config_module
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from torchrl_ahrs.app.shared.config import num_minibatches
+from torchrl_ahrs.app.shared.config import network_precision, num_minibatches
 from torchrl_ahrs.app.train.build import (
     build_collector,
     build_estimator_and_loss,
@@ -67,6 +67,8 @@ VARIANTS: dict[str, list[str]] = {
     # the hidden layers' matrix products in bfloat16 (training/models.py, AutocastMLP), and in float32
     "bf16": ["model.precision=bfloat16"],
     "fp32": ["model.precision=float32"],
+    "bf16_critic": ["model.actor_precision=float32", "model.critic_precision=bfloat16"],  # the critic's alone
+    "bf16_actor": ["model.actor_precision=bfloat16", "model.critic_precision=float32"],  # the actor's alone
 }
 
 
@@ -187,7 +189,9 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         f"task {task}, method {method}, variant {variant} ({overrides}): {trainer.num_envs} envs x"
         f" {trainer.frames_per_batch // trainer.num_envs} steps = {trainer.frames_per_batch} frames per batch,"
         f" {trainer.num_epochs} epochs x {num_minibatches(cfg)} minibatches of {trainer.mini_batch_size},"
-        f" {list(model.hidden_sizes)} {model.activation} in {precision_name(compute_dtype(model.precision))},"
+        f" {list(model.hidden_sizes)} {model.activation}, actor in"
+        f" {precision_name(compute_dtype(network_precision(model, 'actor')))}, critic in"
+        f" {precision_name(compute_dtype(network_precision(model, 'critic')))},"
         f" torch threads {trainer.torch_threads};"
         f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )

@@ -79,9 +79,33 @@ def test_the_run_builds_actor_and_both_critics_in_the_configured_precision(preci
         if isinstance(module, AutocastMLP)
     ]
     assert len(mlps) == 3  # the actor's mean, the K-head critic, the anchor; not the Sequentials around them
-    assert networks.hidden_dtype == expected and all(mlp.compute_dtype == expected for mlp in mlps)
+    assert networks.actor_dtype == networks.critic_dtype == expected
+    assert all(mlp.compute_dtype == expected for mlp in mlps)
+
+
+@pytest.mark.parametrize("actor, critic", [("float32", "bfloat16"), ("bfloat16", "float32")])
+def test_actor_and_critic_precisions_override_model_precision_each_for_its_own_network(actor, critic):
+    cfg = make_cfg(
+        "task=point_reach",
+        "method=ahrs",
+        "ppo.mix=anchored",
+        "model.precision=auto",
+        f"model.actor_precision={actor}",
+        f"model.critic_precision={critic}",
+    )
+    validate_config(cfg)
+    networks = build_networks(cfg, env_factory(cfg))
+    expected = {"float32": None, "bfloat16": torch.bfloat16}
+    assert (networks.actor_dtype, networks.critic_dtype) == (expected[actor], expected[critic])
+    actor_mlps = [m.compute_dtype for m in networks.actor.modules() if isinstance(m, AutocastMLP)]
+    critic_mlps = [m.compute_dtype for m in networks.critic.modules() if isinstance(m, AutocastMLP)]
+    assert actor_mlps == [expected[actor]] and critic_mlps == [expected[critic]] * 2  # K heads and the anchor
 
 
 def test_an_unknown_precision_is_one_clear_line():
     with pytest.raises(ConfigError, match=r"^model.precision must be one of float32, bfloat16, auto, got 'half'$"):
         validate_config(make_cfg("task=point_reach", "model.precision=half"))
+    with pytest.raises(
+        ConfigError, match=r"^model.critic_precision must be one of float32, bfloat16, auto or null, got 'fp16'$"
+    ):
+        validate_config(make_cfg("task=point_reach", "model.critic_precision=fp16"))

@@ -124,8 +124,11 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(
             f"model.observation_norm must be one of {', '.join(OBSERVATION_NORMS)}, got {cfg.model.observation_norm!r}"
         )
-    if cfg.model.get("precision", "float32") not in PRECISIONS:
+    if cfg.model.get("precision", "float32") not in PRECISIONS:  # float32 in a run saved before the key
         raise ConfigError(f"model.precision must be one of {', '.join(PRECISIONS)}, got {cfg.model.precision!r}")
+    for key in ("actor_precision", "critic_precision"):  # null: the network follows model.precision
+        if cfg.model.get(key) not in (*PRECISIONS, None):
+            raise ConfigError(f"model.{key} must be one of {', '.join(PRECISIONS)} or null, got {cfg.model.get(key)!r}")
     ppo = cfg.ppo
     if ppo.get("value_norm") not in (None, False, True, "running", "popart"):
         raise ConfigError(f"ppo.value_norm must be running, popart or null, got {ppo.get('value_norm')!r}")
@@ -256,3 +259,16 @@ def save_config(cfg: DictConfig, path: Path) -> None:
     """Writes the resolved config as YAML, secrets redacted."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
     path.write_text(OmegaConf.to_yaml(OmegaConf.create(redact(resolved))))
+
+
+def network_precision(model: DictConfig, network: str) -> str:
+    """The precision setting of ``network`` (``actor`` or ``critic``): ``model.<network>_precision``, or
+    ``model.precision`` where that is unset (null), or float32 for a run saved before either key.
+
+    Example:
+        >>> from omegaconf import OmegaConf
+        >>> model = OmegaConf.create({"precision": "auto", "actor_precision": "float32", "critic_precision": None})
+        >>> network_precision(model, "actor"), network_precision(model, "critic")
+        ('float32', 'auto')
+    """
+    return model.get(f"{network}_precision") or model.get("precision", "float32")

@@ -21,7 +21,7 @@ from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor
 
 from torchrl_ahrs.app.shared.auxiliary import TransformFactory, auxiliary_transform
-from torchrl_ahrs.app.shared.config import resolve_components
+from torchrl_ahrs.app.shared.config import network_precision, resolve_components
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import RunDirectory, calls_log
 from torchrl_ahrs.app.shared.settings import override_task, scheduler_settings, task_settings
@@ -119,7 +119,8 @@ class Networks:
     actor_norm: RunningNorm
     critic_norm: RunningNorm
     critic_key: str
-    hidden_dtype: torch.dtype | None = None  # model.precision resolved: the hidden layers' dtype, None = float32
+    actor_dtype: torch.dtype | None = None  # model.actor_precision resolved: its hidden layers' dtype, None = float32
+    critic_dtype: torch.dtype | None = None  # model.critic_precision resolved, for the K heads and the anchor alike
 
 
 def build_networks(
@@ -171,11 +172,12 @@ def build_networks(
         critic.to(device)
     critic_norm.to(device)
     # the hidden layers' precision, the same in collection, advantages and loss (a run saved before the key: float32)
-    hidden_dtype = compute_dtype(model.get("precision", "float32"), device)
-    for network in (actor, critic):
-        if network is not None:
-            set_compute_dtype(network, hidden_dtype)
-    return Networks(actor, critic, actor_norm, critic_norm, critic_key, hidden_dtype)
+    actor_dtype = compute_dtype(network_precision(model, "actor"), device)
+    critic_dtype = compute_dtype(network_precision(model, "critic"), device)
+    set_compute_dtype(actor, actor_dtype)
+    if critic is not None:
+        set_compute_dtype(critic, critic_dtype)
+    return Networks(actor, critic, actor_norm, critic_norm, critic_key, actor_dtype, critic_dtype)
 
 
 def anchored(cfg: DictConfig, num_components: int) -> bool:

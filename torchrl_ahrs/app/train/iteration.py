@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.app.shared.config import num_minibatches, save_config, validate_config
+from torchrl_ahrs.app.shared.config import network_precision, num_minibatches, save_config, validate_config
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.train.build import (
@@ -100,14 +100,20 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
     if physics != devices.envs:  # e.g. JAX on a GPU with trainer.device=cpu
         log.warning("MJX steps on %s, its env on %s: every control step copies the state across", physics, devices.envs)
     networks = build_networks(cfg, make_envs, device=devices.learner)
-    precision = cfg.model.get("precision", "float32")
-    log.info("hidden layers in %s (model.precision=%s)", precision_name(networks.hidden_dtype), precision)
-    if precision == "bfloat16" and not native_bfloat16(devices.learner):
-        log.warning(
-            "model.precision=bfloat16, but %s has no bfloat16 arithmetic in hardware: it is emulated, slower than"
-            " float32 (model.precision=auto chooses float32 here)",
-            devices.learner,
-        )
+    log.info(
+        "hidden layers: actor in %s, critic in %s (model.precision=%s)",
+        precision_name(networks.actor_dtype),
+        precision_name(networks.critic_dtype),
+        cfg.model.get("precision", "float32"),
+    )
+    for network in ("actor", "critic"):
+        if network_precision(cfg.model, network) == "bfloat16" and not native_bfloat16(devices.learner):
+            log.warning(
+                "the %s in bfloat16, but %s has no bfloat16 arithmetic in hardware: it is emulated, slower than"
+                " float32 (model.precision=auto chooses float32 here)",
+                network,
+                devices.learner,
+            )
     estimator, loss = build_estimator_and_loss(cfg, networks, components, devices.learner)
     optimizer = build_optimizer(cfg, loss, networks.critic)  # Adam; the critic's own group with ppo.kl_adapts=actor
     augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)  # ppo.mirror: each minibatch + its image
