@@ -8,7 +8,8 @@ Usage::
 ``--variants`` measures each variant in turn in this one process, one table each (and a summary): a variant is
 a name of :data:`VARIANTS` or several joined by ``+``, its Hydra overrides after those of the command line.
 ``--runs N`` measures each variant N times, one after another; the summary then gives the medians over the runs
-and each run's share of its floor (two runs a minute apart have differed by 17 points: benchmarks/RESULTS.md).
+and each run's share of its floor (two runs a minute apart have differed by 17 points: benchmarks/RESULTS.md), and
+from three runs on the mean share with its 95 % bootstrap interval (rliable's, via ``reporting.intervals``).
 
 Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method>`` does (the task's preset
 included; extra Hydra overrides follow the flags), then measures in this one process, with the run's torch
@@ -53,6 +54,7 @@ from torchrl_ahrs.app.train.build import (
     build_networks,
     env_factory,
 )
+from torchrl_ahrs.reporting.intervals import mean_interval
 from torchrl_ahrs.training.loop import MINIBATCH_KEYS
 from torchrl_ahrs.training.models import compute_dtype, precision_name
 
@@ -246,6 +248,7 @@ def main() -> None:
             f"  {'variant':34s} {'end to end ms':>13s} {'frames/s':>9s} {'floor ms':>9s} {'of floor':>9s} {'of first':>9s}"
             "  of floor, each run"
         )
+        intervals = {}
         for variant, (runs, frames) in results.items():
             end_to_end = statistics.median(end for _, end in runs)
             floor = statistics.median(floor for floor, _ in runs)
@@ -255,6 +258,12 @@ def main() -> None:
                 f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%}"
                 f"  {' '.join(f'{share:.0%}' for share in shares)}"
             )
+            if (
+                len(shares) >= 3
+            ):  # the runs scatter by up to 30 points on a shared 2-core VM: say how far the mean is known
+                intervals[variant] = mean_interval(shares)
+        for variant, (mean, low, high) in intervals.items():
+            print(f"  {variant}: of floor, mean over runs {mean:.0%}, 95 % bootstrap interval [{low:.0%}, {high:.0%}]")
 
 
 if __name__ == "__main__":
