@@ -1,6 +1,7 @@
 """The benchmark scripts still run end to end (tiny arguments, no timing assertions)."""
 
 import json
+import re
 import runpy
 import subprocess
 import sys
@@ -136,10 +137,16 @@ def test_bench_floor_runs_a_variant_several_times_and_summarises_the_medians(mon
             line[:44].strip(): float(line[44:].split()[0]) for line in table.splitlines() if line[:44].strip() in rows
         }
         ratios.append(ms[rows[0]] / ms[rows[1]])
-    (row,) = out.split("variants side by side")[1].splitlines()[2:]
+    row, interval = out.split("variants side by side")[1].splitlines()[2:]
     shares = [float(share.rstrip("%")) for share in row.split()[-3:]]
     assert shares == pytest.approx([100 * ratio for ratio in ratios], abs=1.0)  # the rows' own ratios, rounded
     assert float(row.split()[4].rstrip("%")) == pytest.approx(sorted(shares)[1], abs=1.0)  # their median
+    mean, low, high = (float(x) for x in re.findall(r"(\d+)%", interval))  # from three runs: the mean and its interval
+    assert interval.startswith("  default: of floor, mean over runs")
+    assert (
+        mean == pytest.approx(100 * sum(ratios) / 3, abs=1.0)
+        and min(shares) - 1 <= low <= mean <= high <= max(shares) + 1
+    )
 
 
 def test_bench_floor_refuses_an_unknown_variant_before_measuring(monkeypatch, capsys):
