@@ -149,6 +149,27 @@ def test_bench_floor_runs_a_variant_several_times_and_summarises_the_medians(mon
     )
 
 
+def test_bench_precision_times_every_split_of_actor_and_critic_precision(monkeypatch, capsys):
+    argv = [
+        "--task",
+        "cassie",
+        "--method",
+        "ahrs",
+        "--rounds",
+        "1",
+        "trainer.num_envs=2",
+        "trainer.frames_per_batch=16",
+    ]
+    argv += ["trainer.mini_batch_size=8", "trainer.num_epochs=1", "model.hidden_sizes=[8]", "ppo.mirror=true"]
+    out = run_script("throughput/bench_precision.py", argv, monkeypatch, capsys)
+    rows = {line[:18].strip(): line[18:].split() for line in out.splitlines()[2:]}
+    assert list(rows) == ["float32", "critic bf16", "actor bf16", "both bf16"]
+    assert rows["float32"][1::2] == ["1.00"] * 4  # float32 against itself: loss steps, advantages, acting, sum
+    for cells in rows.values():  # the sum column is the sum of the three parts
+        assert float(cells[6]) == pytest.approx(sum(float(ms) for ms in cells[0:6:2]), abs=0.2)
+    assert "2 minibatches of 8 mirrored" in out.splitlines()[0]
+
+
 def test_bench_floor_refuses_an_unknown_variant_before_measuring(monkeypatch, capsys):
     with pytest.raises(SystemExit) as stop:
         run_script(
