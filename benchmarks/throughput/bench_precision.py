@@ -24,13 +24,22 @@ import argparse
 import os
 import statistics
 import time
+from collections.abc import Callable
 
 import torch
 from hydra import compose, initialize_config_module
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_ahrs.app.shared.config import num_minibatches
-from torchrl_ahrs.app.train.build import build_estimator_and_loss, build_mirror, build_networks, env_factory
+from torchrl_ahrs.app.train.build import (
+    build_collector,
+    build_estimator_and_loss,
+    build_mirror,
+    build_networks,
+    env_factory,
+)
 from torchrl_ahrs.training.loop import MINIBATCH_KEYS
 
 # split name -> (actor precision, critic precision)
@@ -42,7 +51,7 @@ SPLITS = {
 }
 
 
-def build_parts(cfg, batch) -> dict:
+def build_parts(cfg: DictConfig, batch: TensorDictBase) -> dict[str, Callable[[], None]]:
     """The split's timed closures over one shared collected ``batch`` (a float32 TensorDict [N, T])."""
     trainer = cfg.trainer
     make_envs = env_factory(cfg)
@@ -80,10 +89,8 @@ def build_parts(cfg, batch) -> dict:
     return {"loss steps": loss_steps, "advantages": advantages, "acting": acting}
 
 
-def collected_batch(cfg):
+def collected_batch(cfg: DictConfig) -> TensorDictBase:
     """One batch from the run's collector (float32 networks), shared by every split."""
-    from torchrl_ahrs.app.train.build import build_collector
-
     make_envs = env_factory(cfg)
     networks = build_networks(cfg, make_envs)
     collector = build_collector(cfg, networks.actor, make_envs)

@@ -150,16 +150,8 @@ def test_bench_floor_runs_a_variant_several_times_and_summarises_the_medians(mon
 
 
 def test_bench_precision_times_every_split_of_actor_and_critic_precision(monkeypatch, capsys):
-    argv = [
-        "--task",
-        "cassie",
-        "--method",
-        "ahrs",
-        "--rounds",
-        "1",
-        "trainer.num_envs=2",
-        "trainer.frames_per_batch=16",
-    ]
+    argv = ["--task", "cassie", "--method", "ahrs", "--rounds", "1", "trainer.num_envs=2"]
+    argv += ["trainer.frames_per_batch=16"]
     argv += ["trainer.mini_batch_size=8", "trainer.num_epochs=1", "model.hidden_sizes=[8]", "ppo.mirror=true"]
     out = run_script("throughput/bench_precision.py", argv, monkeypatch, capsys)
     rows = {line[:18].strip(): line[18:].split() for line in out.splitlines()[2:]}
