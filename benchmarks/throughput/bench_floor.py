@@ -258,9 +258,8 @@ def main() -> None:
                 f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%}"
                 f"  {' '.join(f'{share:.0%}' for share in shares)}"
             )
-            if (
-                len(shares) >= 3
-            ):  # the runs scatter by up to 30 points on a shared 2-core VM: say how far the mean is known
+            # runs of one variant scatter by up to 30 points on a shared 2-core VM: say how well the mean is known
+            if len(shares) >= 3:
                 intervals[variant] = mean_interval(shares)
         for variant, (mean, low, high) in intervals.items():
             print(f"  {variant}: of floor, mean over runs {mean:.0%}, 95 % bootstrap interval [{low:.0%}, {high:.0%}]")
