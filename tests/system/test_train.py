@@ -53,6 +53,7 @@ def test_ant_v5_preset_regime_learns(tmp_path):
     """The CI learning test on a preset regime (issue 12, item 7): ant_v5's CleanRL-geometry preset."""
     cfg = make_cfg("task=ant_v5", "method=ppo", "trainer.total_frames=61440", "trainer.progress_bar=false")
     assert cfg.trainer.mini_batch_size == 64 and cfg.ppo.value_norm == "running"  # the preset, not the defaults
+    assert cfg.ppo.advantage_pass == "once_per_batch"  # CleanRL's order (session 36)
     train(cfg, tmp_path)
     reward_per_step = read_scalar(tmp_path, "reward/total")
     first, last = sum(reward_per_step[:3]) / 3, sum(reward_per_step[-3:]) / 3
