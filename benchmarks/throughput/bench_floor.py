@@ -8,29 +8,40 @@ Usage::
 ``--variants`` measures each variant in turn in this one process, one table each (and a summary): a variant is
 a name of :data:`VARIANTS` or several joined by ``+``, its Hydra overrides after those of the command line.
 ``--runs N`` measures each variant N times, one after another; the summary then gives the medians over the runs
-and each run's share of its floor (two runs a minute apart have differed by 17 points: benchmarks/RESULTS.md), and
-from three runs on the mean share with its 95 % bootstrap interval (rliable's, via ``reporting.intervals``).
+and each run's share of its floor, and from three runs on the mean share with its 95 % bootstrap interval
+(rliable's, via ``reporting.intervals``). One run already gives an interval over its timed batches (below).
 
 Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method>`` does (the task's preset
-included; extra Hydra overrides follow the flags), then measures in this one process, with the run's torch
-thread count and per collected batch of N envs x T steps:
+included; extra Hydra overrides follow the flags), then runs :func:`torchrl_ahrs.app.train.iteration.train` itself
+in this one process, with the run's torch thread count, and times per collected batch of N envs x T steps:
 
-* ``end to end``: :func:`torchrl_ahrs.app.train.iteration.train` itself, timed between batch deliveries after the
-  warm-up batches (``bench_pipeline.timed_train``): collection, advantages, epochs, hooks, logging;
+* ``end to end``: one iteration of the run, from one batch's delivery to the next (``bench_pipeline``'s
+  ``TimedCollector``): its advantages, epochs, hooks and logging, then the next collection;
+* ``collection``: the run's ``Collector`` delivering that next batch: physics, policy and TorchRL's per-step work;
+
+and beside the run, as each batch arrives and off its clock (:class:`PartsBeside`, on its own copies):
+
 * ``physics``: the run's environments (its reward components and transforms) stepped T times with uniformly
   random actions, partial resets included;
-* ``policy forward``: the actor sampling actions for N observations, T times;
-* ``collection``: the run's ``Collector`` delivering a batch: physics, policy and TorchRL's per-step work;
+* ``policy forward``: the actor sampling actions for N collected observations, T times;
 * ``advantages``: ``WeightedMultiGAE`` over one collected batch, once per epoch (as ``training/loop.py`` runs it
   with ``ppo.advantage_pass=every_epoch``; once per batch with ``once_per_batch``);
 * ``loss steps``: loss forward, backward, gradient clipping and a fused Adam step on a ready minibatch of the
   run's size (with ``ppo.mirror=true``, the minibatch followed by its mirror image: twice the rows), times
-  epochs x minibatches (the forward through ``torch.compile`` with ``trainer.compile=true``,
-  compiled in the untimed warm-up).
+  epochs x minibatches (the forward through ``torch.compile`` with ``trainer.compile=true``, compiled at the first,
+  untimed batch).
+
+The last three are ``network_parts.py``'s closures, which bench_precision.py times too.
 
 The floor is physics + loss steps, what any PPO at this geometry and network size pays; ``rest`` is the end
 to end time minus collection, advantages and loss steps: what the iteration's hooks, minibatch serving and
-logging add. Times are medians of repeats.
+logging add. The parts beside the run are timed in the same seconds as the iterations they are compared with: two
+samples, taken as the iteration's first batch and the next arrive, bracket each iteration, and their mean is the
+iteration's. The table gives medians over the timed iterations, then each iteration's share of the floor (its
+floor over its end to end) and their mean, from three iterations with its 95 % bootstrap interval. That mean is
+the figure to read: the VM's drift cancels within each iteration, not between the medians of the table. (Timed
+minutes apart, as before session 37, the parts moved up to twofold with the VM's speed, and a run's share with
+them.)
 """
 
 from __future__ import annotations
@@ -39,23 +50,17 @@ import argparse
 import os
 import statistics
 import time
+from collections.abc import Callable
 
 import torch
-from bench_pipeline import rates, timed_train
+from bench_pipeline import rates, train_with_timed_collector
 from hydra import compose, initialize_config_module
+from network_parts import network_parts
 from tensordict import TensorDictBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_ahrs.app.shared.config import network_precision, num_minibatches
-from torchrl_ahrs.app.train.build import (
-    build_collector,
-    build_estimator_and_loss,
-    build_mirror,
-    build_networks,
-    env_factory,
-)
+from torchrl_ahrs.app.train.build import build_networks, env_factory
 from torchrl_ahrs.reporting.intervals import mean_interval
-from torchrl_ahrs.training.loop import MINIBATCH_KEYS
 from torchrl_ahrs.training.models import compute_dtype, precision_name
 
 # what --variants accepts: a name -> the Hydra overrides it adds (names join with "+": once+threads2)
@@ -93,98 +98,93 @@ def variant_overrides(variant: str) -> list[str]:
     return overrides
 
 
-def median_ms(fn, repeats: int, warmup: int = 2) -> float:
-    """Median wall time of ``fn()`` in milliseconds over ``repeats`` calls, after ``warmup`` untimed calls."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
+class PartsBeside:
+    """The parts of an iteration timed beside each batch of the end-to-end run, off its clock.
 
+    Called with each batch as it arrives (:class:`bench_pipeline.TimedCollector`'s ``beside``), it times once each:
+    ``physics``, its own copy of the run's environments stepped T times with random actions; ``acting``, the actor
+    sampling actions for N observations, T times; ``advantages``, the run's advantage passes over a batch; and
+    ``loss steps``, epochs x minibatches loss steps on a ready minibatch. The networks are its own, built with the
+    environments at the first batch, whose clone serves the network parts throughout.
 
-def floor_parts(cfg, repeats: int) -> dict[str, float]:
-    """Milliseconds per collected batch of each part of an iteration, measured apart (see the module docstring)."""
-    trainer = cfg.trainer
-    num_envs, frames_per_batch = trainer.num_envs, trainer.frames_per_batch
-    steps = frames_per_batch // num_envs  # T
-    make_envs = env_factory(cfg)
-    networks = build_networks(cfg, make_envs)
-    estimator, loss = build_estimator_and_loss(cfg, networks, make_envs.components)
+    Timing the parts in the same seconds as the iterations they are compared with keeps the shares immune to the VM's
+    drift in speed, which moved parts timed minutes apart by up to twofold (benchmarks/RESULTS.md, session 37).
+    ``samples[part]`` holds one time per batch, in milliseconds; ``labels[part]`` names the part's row.
+    """
 
-    env = make_envs(num_envs, int(cfg.seed))
-    state = env.reset()
+    def __init__(self, cfg):
+        self.cfg = cfg
+        self.samples: dict[str, list[float]] = {}
+        self.labels: dict[str, str] = {}
+        self._parts: dict[str, Callable[[], None]] = {}
 
-    def physics() -> None:
-        nonlocal state
-        for _ in range(steps):
-            _, state = env.step_and_maybe_reset(env.rand_action(state))
+    def _build(self, batch: TensorDictBase) -> None:
+        cfg = self.cfg
+        steps = cfg.trainer.frames_per_batch // cfg.trainer.num_envs  # T
+        make_envs = env_factory(cfg)
+        env = make_envs(cfg.trainer.num_envs, int(cfg.seed) + 1)
+        state = env.reset()
 
-    observations = state.select(*networks.actor.in_keys).clone()
-
-    def policy_forward() -> None:
-        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        def physics() -> None:
+            nonlocal state
             for _ in range(steps):
-                networks.actor(observations.clone(False))
+                _, state = env.step_and_maybe_reset(env.rand_action(state))
 
-    parts = {"physics (random actions)": median_ms(physics, repeats)}
-    parts["policy forward (collection)"] = median_ms(policy_forward, repeats)
-    env.close()
+        work = network_parts(cfg, make_envs, build_networks(cfg, make_envs), batch.clone())
+        self._parts = {"physics": physics, **work.per_batch()}
+        passes = work.advantage_passes_per_batch
+        self.labels = {
+            "physics": "physics (random actions)",
+            "acting": "policy forward (collection)",
+            "advantages": f"advantages (x {passes} {'epochs' if passes == cfg.trainer.num_epochs else 'pass'})",
+            "loss steps": f"loss steps (x {work.loss_steps_per_batch}{', mirrored' if work.mirrored else ''})",
+        }
+        self.samples = {part: [] for part in self._parts}
 
-    collector = build_collector(cfg, networks.actor, make_envs)
-    batches = iter(collector)
-    batch: TensorDictBase = next(batches)
-
-    def collection() -> None:
-        nonlocal batch
-        batch = next(batches)
-
-    parts["collection (Collector, policy acting)"] = median_ms(collection, repeats, warmup=0)
-    collector.shutdown()
-
-    def advantages() -> None:
-        with torch.no_grad():
-            estimator(batch)
-
-    passes = 1 if cfg.ppo.get("advantage_pass", "every_epoch") == "once_per_batch" else trainer.num_epochs
-    parts[f"advantages (x {passes} {'epochs' if passes == trainer.num_epochs else 'pass'})"] = passes * median_ms(
-        advantages, repeats
-    )
-    keys = [*loss.in_keys, *MINIBATCH_KEYS]  # what training/loop.py gathers into minibatches
-    minibatch = batch.reshape(-1)[: trainer.mini_batch_size].select(*keys, strict=False)
-    augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)
-    if augment is not None:  # ppo.mirror: the loss trains on the minibatch and its image, as any symmetric PPO does
-        minibatch = augment(minibatch)  # made once, untimed: the floor is the loss on the ready, twice-sized minibatch
-    optimizer = torch.optim.Adam(loss.parameters(), lr=1e-5, eps=1e-5, fused=True)  # as train() builds it
-    loss_forward = torch.compile(loss) if trainer.get("compile", False) else loss  # as training/loop.py calls it
-
-    def loss_step() -> None:
-        losses = loss_forward(minibatch)
-        sum(value for key, value in losses.items() if key.startswith("loss_")).backward()
-        torch.nn.utils.clip_grad_norm_(loss.parameters(), trainer.max_grad_norm)
-        optimizer.step()
-        optimizer.zero_grad()
-
-    steps_per_batch = trainer.num_epochs * num_minibatches(cfg)
-    name = f"loss steps (x {steps_per_batch}{', mirrored' if augment is not None else ''})"
-    parts[name] = steps_per_batch * median_ms(loss_step, 10 * repeats, warmup=10)
-    return parts
+    def __call__(self, batch: TensorDictBase) -> None:
+        if not self._parts:
+            self._build(batch)
+        for part, run in self._parts.items():
+            start = time.perf_counter()
+            run()
+            self.samples[part].append(1e3 * (time.perf_counter() - start))
 
 
-def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace) -> tuple[float, float]:
-    """Prints the table of one variant (``cfg`` composed with its overrides); returns (floor, end to end) [ms]."""
+def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace) -> tuple[float, float, float]:
+    """Prints the table of one variant (``cfg`` composed with its overrides); returns the floor and the end to end
+    [ms], medians over the timed iterations, and the iterations' mean share of the floor."""
     trainer = cfg.trainer
-    # warm-up + timed batches, plus the untimed first and last batches (timed_train drops the last)
+    # warm-up + timed batches, plus the untimed first and last batches
     trainer.total_frames = (args.batches + args.warmup + 2) * trainer.frames_per_batch
     torch.manual_seed(args.seed)
     torch.set_num_threads(trainer.torch_threads)
     load_before = os.getloadavg()
-    parts = floor_parts(cfg, args.repeats)
-    fps, cpu_ms_per_frame = rates(timed_train(cfg), trainer.frames_per_batch, args.warmup)
-    end_to_end = 1e3 * trainer.frames_per_batch / fps
-    floor = parts["physics (random actions)"] + next(v for k, v in parts.items() if k.startswith("loss steps"))
+    beside = PartsBeside(cfg)
+    timed = train_with_timed_collector(cfg, beside)
+    stamps = timed.stamps[:-1]  # the last batch's collection carries the collector's teardown
+    _, cpu_ms_per_frame = rates(stamps, trainer.frames_per_batch, args.warmup)
+    # iteration i runs from batch i's stamp to batch i + 1's: its update, then the next collection. The parts are
+    # timed as each batch arrives, so two samples bracket each iteration: their mean is the iteration's
+    iterations = range(args.warmup, len(stamps) - 1)
+    end_to_end = [1e3 * (stamps[i + 1][0] - stamps[i][0]) for i in iterations]
+    collection = [1e3 * timed.collecting[i + 1] for i in iterations]
+    parts = {part: [(ms[i] + ms[i + 1]) / 2 for i in iterations] for part, ms in beside.samples.items()}
+    floor = [physics + loss for physics, loss in zip(parts["physics"], parts["loss steps"], strict=True)]
+    shares = [floor_ms / end_ms for floor_ms, end_ms in zip(floor, end_to_end, strict=True)]
+    median = {part: statistics.median(ms) for part, ms in parts.items()}
+    rows = {
+        beside.labels["physics"]: median["physics"],
+        beside.labels["acting"]: median["acting"],
+        "collection (Collector, policy acting)": statistics.median(collection),
+        beside.labels["advantages"]: median["advantages"],
+        beside.labels["loss steps"]: median["loss steps"],
+        "floor = physics + loss steps": statistics.median(floor),
+        "end to end (train)": statistics.median(end_to_end),
+    }
+    # the rest: what an iteration spends outside collection, advantages and loss steps (physics and acting are
+    # inside collection)
+    outside = ["collection (Collector, policy acting)", beside.labels["advantages"], beside.labels["loss steps"]]
+    rows["rest (hooks, minibatches, logging)"] = rows["end to end (train)"] - sum(rows[name] for name in outside)
     model = cfg.model
     overrides = " ".join(variant_overrides(variant)) or "no overrides"
     print(
@@ -197,16 +197,21 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         f" torch threads {trainer.torch_threads};"
         f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )
-    rows = [*parts.items(), ("floor = physics + loss steps", floor), ("end to end (train)", end_to_end)]
-    # physics and the policy's forward pass are inside collection
-    outside = sum(ms for name, ms in parts.items() if not name.startswith(("physics", "policy")))
-    rows.append(("rest (hooks, minibatches, logging)", end_to_end - outside))
-    print(f"  {'part':42s} {'ms/batch':>9s} {'frames/s':>9s} {'of end to end':>14s}")
-    for name, milliseconds in rows:
+    end_ms = rows["end to end (train)"]
+    print(f"  {'part (median over the timed batches)':42s} {'ms/batch':>9s} {'frames/s':>9s} {'of end to end':>14s}")
+    for name, milliseconds in rows.items():
         rate = 1e3 * trainer.frames_per_batch / milliseconds if milliseconds > 0 else float("nan")
-        print(f"  {name:42s} {milliseconds:9.1f} {rate:9.0f} {milliseconds / end_to_end:13.0%}")
+        print(f"  {name:42s} {milliseconds:9.1f} {rate:9.0f} {milliseconds / end_ms:13.0%}")
     print(f"  end-to-end CPU time: {cpu_ms_per_frame:.3f} ms per frame (all threads)")
-    return floor, end_to_end
+    # each iteration against the floor timed in its own seconds: the VM's drift cancels in each share
+    print(f"  of floor, each timed iteration: {' '.join(f'{share:.0%}' for share in shares)}")
+    mean_share = statistics.fmean(shares)
+    interval = ""
+    if len(shares) >= 3:
+        _, low, high = mean_interval(shares)
+        interval = f", 95 % bootstrap interval [{low:.0%}, {high:.0%}]"
+    print(f"  of floor over the iterations: mean {mean_share:.0%}{interval}")
+    return rows["floor = physics + loss steps"], end_ms, mean_share
 
 
 def main() -> None:
@@ -214,8 +219,9 @@ def main() -> None:
     parser.add_argument("--task", required=True)
     parser.add_argument("--method", default="ppo")
     parser.add_argument("--batches", type=int, default=10, help="timed batches of the end-to-end run")
-    parser.add_argument("--warmup", type=int, default=2, help="batches of the end-to-end run left out of its timing")
-    parser.add_argument("--repeats", type=int, default=5, help="repeats of each part (loss steps: 10x as many)")
+    parser.add_argument(
+        "--warmup", type=int, default=2, help="batches of the end-to-end run left out of its timing (at least 1)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--runs", type=int, default=1, help="measurements of each variant, one after another; the summary gives medians"
@@ -227,6 +233,8 @@ def main() -> None:
     )
     parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. trainer.torch_threads=2")
     args = parser.parse_args()
+    if args.warmup < 1:  # the first floor sample carries the floor's own warm-up (and compiling, where compiled)
+        parser.error(f"--warmup must be at least 1, got {args.warmup}")
     variants = [variant.strip() for variant in args.variants.split(",") if variant.strip()]
     for variant in variants:  # every name checked before the first (minutes long) measurement
         try:
@@ -235,14 +243,15 @@ def main() -> None:
             parser.error(str(error))
     overrides = [f"task={args.task}", f"method={args.method}", f"seed={args.seed}", *args.overrides]
     overrides += ["trainer.progress_bar=false", "checkpoint.interval=0", "logger.backends=[csv]"]
-    results: dict[str, tuple[list[tuple[float, float]], int]] = {}  # variant -> ([(floor, end to end)] per run, frames)
+    # variant -> ([(floor, end to end, mean share)] per run, frames per batch)
+    results: dict[str, tuple[list[tuple[float, float, float]], int]] = {}
     for variant in variants:
         with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
             cfg = compose(config_name="config", overrides=[*overrides, *variant_overrides(variant)])
         runs = [measure(cfg, args.task, args.method, variant, args) for _ in range(args.runs)]
         results[variant] = (runs, cfg.trainer.frames_per_batch)
-    if len(results) > 1 or args.runs > 1:  # one line per variant: medians over its runs; "of floor": floor / end to end
-        first_floor = statistics.median(floor for floor, _ in results[variants[0]][0])
+    if len(results) > 1 or args.runs > 1:  # one line per variant: medians over its runs
+        first_floor = statistics.median(floor for floor, _, _ in results[variants[0]][0])
         print(f"variants side by side (medians of {args.runs} run(s); of its own floor, and of {variants[0]}'s)")
         print(
             f"  {'variant':34s} {'end to end ms':>13s} {'frames/s':>9s} {'floor ms':>9s} {'of floor':>9s} {'of first':>9s}"
@@ -250,15 +259,15 @@ def main() -> None:
         )
         intervals = {}
         for variant, (runs, frames) in results.items():
-            end_to_end = statistics.median(end for _, end in runs)
-            floor = statistics.median(floor for floor, _ in runs)
-            shares = [floor_ms / end_ms for floor_ms, end_ms in runs]
+            end_to_end = statistics.median(end for _, end, _ in runs)
+            floor = statistics.median(floor for floor, _, _ in runs)
+            shares = [share for _, _, share in runs]  # each run's mean share over its iterations
             print(
                 f"  {variant:34s} {end_to_end:13.1f} {1e3 * frames / end_to_end:9.0f} {floor:9.1f}"
                 f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%}"
                 f"  {' '.join(f'{share:.0%}' for share in shares)}"
             )
-            # runs of one variant scatter by up to 30 points on a shared 2-core VM: say how well the mean is known
+            # say how well the mean over runs is known
             if len(shares) >= 3:
                 intervals[variant] = mean_interval(shares)
         for variant, (mean, low, high) in intervals.items():

@@ -38,10 +38,12 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_module
+from tensordict import TensorDictBase
 
 # reference_ppo.py is shared with the learning benchmark (learning/learning_peers.py) and lives there
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
@@ -91,17 +93,34 @@ class CpuClock:
 
 
 class TimedCollector:
-    """Delegates to a collector and records ``(wall, cpu)`` each time it hands out a batch."""
+    """Delegates to a collector and records ``(wall, cpu)`` each time it hands out a batch.
 
-    def __init__(self, collector):
+    ``collecting`` holds the wall seconds each batch took to arrive, from the moment the consumer asked for it.
+    ``beside(batch)``, when given, runs as each batch arrives, before it is handed out; its wall and CPU time are
+    taken off the clocks, so the stamps time the pipeline alone (bench_floor.py times the floor there, beside each
+    batch).
+    """
+
+    def __init__(self, collector, beside: Callable[[TensorDictBase], None] | None = None):
         self._collector = collector
         self._cpu = CpuClock()
+        self._beside = beside
         self.stamps: list[tuple[float, float]] = []
+        self.collecting: list[float] = []
 
     def __iter__(self):
+        paused_wall = paused_cpu = 0.0  # [s] spent in beside(), left out of the stamps
+        asked = time.perf_counter()
         for batch in self._collector:
-            self.stamps.append((time.perf_counter(), self._cpu()))
+            self.collecting.append(time.perf_counter() - asked)
+            if self._beside is not None:
+                wall, cpu = time.perf_counter(), self._cpu()
+                self._beside(batch)
+                paused_wall += time.perf_counter() - wall
+                paused_cpu += self._cpu() - cpu
+            self.stamps.append((time.perf_counter() - paused_wall, self._cpu() - paused_cpu))
             yield batch
+            asked = time.perf_counter()
 
     def __getattr__(self, name):
         return getattr(self._collector, name)
@@ -145,17 +164,20 @@ def run_ours(method: str, args: argparse.Namespace, total_frames: int) -> tuple[
 
 def timed_train(cfg) -> list[tuple[float, float]]:
     """``(wall, cpu)`` at each batch :func:`torchrl_ahrs.app.train.iteration.train` collects on ``cfg`` (in a scratch
-    run directory), but the last: its collection carries the collector's teardown.
+    run directory), but the last: its collection carries the collector's teardown."""
+    return train_with_timed_collector(cfg).stamps[:-1]
 
-    The only instrumentation is a :class:`TimedCollector` around the collector ``train`` builds.
-    """
+
+def train_with_timed_collector(cfg, beside: Callable[[TensorDictBase], None] | None = None) -> TimedCollector:
+    """Runs :func:`torchrl_ahrs.app.train.iteration.train` on ``cfg`` in a scratch run directory; returns the
+    :class:`TimedCollector` (with ``beside``) put around the collector ``train`` builds, its only instrumentation."""
     import torchrl_ahrs.app.train.iteration as training
 
     timed: list[TimedCollector] = []
     build_collector = training.build_collector
 
     def make_timed_collector(*a, **kw):
-        timed.append(TimedCollector(build_collector(*a, **kw)))
+        timed.append(TimedCollector(build_collector(*a, **kw), beside))
         return timed[-1]
 
     training.build_collector = make_timed_collector
@@ -164,7 +186,7 @@ def timed_train(cfg) -> list[tuple[float, float]]:
             training.train(cfg, Path(run_dir))
     finally:
         training.build_collector = build_collector
-    return timed[0].stamps[:-1]
+    return timed[0]
 
 
 # --- TorchRL reference ---------------------------------------------------------------------------

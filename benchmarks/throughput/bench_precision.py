@@ -10,9 +10,11 @@ splits. Here every split is built once in one process, and each round times each
 ready minibatch, so drift in the machine's speed falls on all of them alike. Per collected batch and split:
 
 * ``loss steps``: loss forward, backward, gradient clipping and a fused Adam step on a ready minibatch (mirrored with
-  ``ppo.mirror=true``), times epochs x minibatches, as bench_floor.py counts them;
-* ``advantages``: ``WeightedMultiGAE`` over one batch, once per epoch (``ppo.advantage_pass=every_epoch``);
+  ``ppo.mirror=true``), times epochs x minibatches;
+* ``advantages``: ``WeightedMultiGAE`` over one batch, once per epoch (once with ``ppo.advantage_pass=once_per_batch``);
 * ``acting``: the actor sampling actions for the batch's N observations, T times.
+
+The closures are ``network_parts.py``'s, the ones bench_floor.py times.
 
 The splits set ``model.actor_precision`` and ``model.critic_precision``: both float32, the critic alone in
 bfloat16, the actor alone, both. Printed: per split, the median over rounds of each part, and its ratio to float32's.
@@ -28,19 +30,12 @@ from collections.abc import Callable
 
 import torch
 from hydra import compose, initialize_config_module
+from network_parts import network_parts
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_ahrs.app.shared.config import num_minibatches
-from torchrl_ahrs.app.train.build import (
-    build_collector,
-    build_estimator_and_loss,
-    build_mirror,
-    build_networks,
-    env_factory,
-)
-from torchrl_ahrs.training.loop import MINIBATCH_KEYS
+from torchrl_ahrs.app.train.build import build_collector, build_networks, env_factory
 
 # split name -> (actor precision, critic precision)
 SPLITS = {
@@ -52,41 +47,10 @@ SPLITS = {
 
 
 def build_parts(cfg: DictConfig, batch: TensorDictBase) -> dict[str, Callable[[], None]]:
-    """The split's timed closures over one shared collected ``batch`` (a float32 TensorDict [N, T])."""
-    trainer = cfg.trainer
+    """The split's timed closures over one shared collected ``batch`` (a float32 TensorDict [N, T]), each the
+    work of one whole batch."""
     make_envs = env_factory(cfg)
-    networks = build_networks(cfg, make_envs)
-    estimator, loss = build_estimator_and_loss(cfg, networks, make_envs.components)
-    keys = [*loss.in_keys, *MINIBATCH_KEYS]
-    with torch.no_grad():
-        estimator(batch)  # the advantage and value-target keys the loss reads
-    minibatch = batch.reshape(-1)[: trainer.mini_batch_size].select(*keys, strict=False)
-    augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)
-    if augment is not None:
-        minibatch = augment(minibatch)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=1e-5, eps=1e-5, fused=True)
-    steps_per_batch = trainer.num_epochs * num_minibatches(cfg)
-    observations = batch[:, 0].select(*networks.actor.in_keys).clone()
-
-    def loss_steps() -> None:
-        for _ in range(steps_per_batch):
-            losses = loss(minibatch)
-            sum(value for key, value in losses.items() if key.startswith("loss_")).backward()
-            torch.nn.utils.clip_grad_norm_(loss.parameters(), trainer.max_grad_norm)
-            optimizer.step()
-            optimizer.zero_grad()
-
-    def advantages() -> None:
-        with torch.no_grad():
-            for _ in range(trainer.num_epochs):
-                estimator(batch)
-
-    def acting() -> None:
-        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-            for _ in range(batch.shape[1]):
-                networks.actor(observations.clone(False))
-
-    return {"loss steps": loss_steps, "advantages": advantages, "acting": acting}
+    return network_parts(cfg, make_envs, build_networks(cfg, make_envs), batch).per_batch()
 
 
 def collected_batch(cfg: DictConfig) -> TensorDictBase:
