@@ -51,6 +51,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable
+from typing import NamedTuple
 
 import torch
 from bench_pipeline import rates, train_with_timed_collector
@@ -150,9 +151,17 @@ class PartsBeside:
             self.samples[part].append(1e3 * (time.perf_counter() - start))
 
 
-def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace) -> tuple[float, float, float]:
-    """Prints the table of one variant (``cfg`` composed with its overrides); returns the floor and the end to end
-    [ms], medians over the timed iterations, and the iterations' mean share of the floor."""
+class Measured(NamedTuple):
+    """One run of one variant: medians over its timed iterations, and means of per-iteration ratios."""
+
+    floor: float  # [ms per batch]
+    end_to_end: float  # [ms per batch]
+    share: float  # mean over iterations of floor / end to end
+    physics_paced: float  # mean over iterations of end to end / the physics beside it: a drift-free pace
+
+
+def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace) -> Measured:
+    """Prints the table of one variant (``cfg`` composed with its overrides) and returns its figures."""
     trainer = cfg.trainer
     # warm-up + timed batches, plus the untimed first and last batches
     trainer.total_frames = (args.batches + args.warmup + 2) * trainer.frames_per_batch
@@ -211,7 +220,10 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         _, low, high = mean_interval(shares)
         interval = f", 95 % bootstrap interval [{low:.0%}, {high:.0%}]"
     print(f"  of floor over the iterations: mean {mean_share:.0%}{interval}")
-    return rows["floor = physics + loss steps"], end_ms, mean_share
+    # the iteration in units of the physics stepped in its own seconds: variants measured minutes apart compare on
+    # this (physics is the same work in every variant), where their frames/s would carry the VM's drift
+    paced = statistics.fmean(end / physics for end, physics in zip(end_to_end, parts["physics"], strict=True))
+    return Measured(rows["floor = physics + loss steps"], end_ms, mean_share, paced)
 
 
 def main() -> None:
@@ -243,28 +255,33 @@ def main() -> None:
             parser.error(str(error))
     overrides = [f"task={args.task}", f"method={args.method}", f"seed={args.seed}", *args.overrides]
     overrides += ["trainer.progress_bar=false", "checkpoint.interval=0", "logger.backends=[csv]"]
-    # variant -> ([(floor, end to end, mean share)] per run, frames per batch)
-    results: dict[str, tuple[list[tuple[float, float, float]], int]] = {}
+    results: dict[str, tuple[list[Measured], int]] = {}  # variant -> (its runs, frames per batch)
     for variant in variants:
         with initialize_config_module(config_module="torchrl_ahrs.conf", version_base="1.3"):
             cfg = compose(config_name="config", overrides=[*overrides, *variant_overrides(variant)])
         runs = [measure(cfg, args.task, args.method, variant, args) for _ in range(args.runs)]
         results[variant] = (runs, cfg.trainer.frames_per_batch)
     if len(results) > 1 or args.runs > 1:  # one line per variant: medians over its runs
-        first_floor = statistics.median(floor for floor, _, _ in results[variants[0]][0])
-        print(f"variants side by side (medians of {args.runs} run(s); of its own floor, and of {variants[0]}'s)")
+        first = results[variants[0]][0]
+        first_floor = statistics.median(run.floor for run in first)
+        first_paced = statistics.median(run.physics_paced for run in first)
+        print(
+            f"variants side by side (medians of {args.runs} run(s); of its own floor, of {variants[0]}'s, and its"
+            f" speed against {variants[0]}'s, each iteration timed against the physics stepped beside it)"
+        )
         print(
             f"  {'variant':34s} {'end to end ms':>13s} {'frames/s':>9s} {'floor ms':>9s} {'of floor':>9s} {'of first':>9s}"
-            "  of floor, each run"
+            f" {'speed':>6s}  of floor, each run"
         )
         intervals = {}
         for variant, (runs, frames) in results.items():
-            end_to_end = statistics.median(end for _, end, _ in runs)
-            floor = statistics.median(floor for floor, _, _ in runs)
-            shares = [share for _, _, share in runs]  # each run's mean share over its iterations
+            end_to_end = statistics.median(run.end_to_end for run in runs)
+            floor = statistics.median(run.floor for run in runs)
+            shares = [run.share for run in runs]  # each run's mean share over its iterations
+            speed = first_paced / statistics.median(run.physics_paced for run in runs)
             print(
                 f"  {variant:34s} {end_to_end:13.1f} {1e3 * frames / end_to_end:9.0f} {floor:9.1f}"
-                f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%}"
+                f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%} {speed:5.2f}x"
                 f"  {' '.join(f'{share:.0%}' for share in shares)}"
             )
             # say how well the mean over runs is known
