@@ -1,9 +1,9 @@
 """The network arithmetic of one training iteration as timed closures, shared by bench_floor.py and bench_precision.py.
 
-Both scripts time the same three parts of an iteration's network work on one collected batch; they differ in how
-they time them (bench_floor.py: medians of single calls, one variant after another; bench_precision.py: whole
-batches, every precision split in turn each round). The closures are built here once so that both time the work
-``training/loop.py`` does, the same way.
+Both scripts time the same three parts of an iteration's network work on one collected batch; they differ in when
+they time them (bench_floor.py: beside each batch of a training run; bench_precision.py: every precision split in
+turn each round). The closures are built here once so that both time the work ``training/loop.py`` does, the same
+way.
 
 Example (one batch of 2 Ant environments x 8 steps, an [8] network)::
 
