@@ -207,7 +207,7 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )
     end_ms = rows["end to end (train)"]
-    print(f"  {'part (median over the timed batches)':42s} {'ms/batch':>9s} {'frames/s':>9s} {'of end to end':>14s}")
+    print(f"  {'part (median of the timed iterations)':42s} {'ms/batch':>9s} {'frames/s':>9s} {'of end to end':>14s}")
     for name, milliseconds in rows.items():
         rate = 1e3 * trainer.frames_per_batch / milliseconds if milliseconds > 0 else float("nan")
         print(f"  {name:42s} {milliseconds:9.1f} {rate:9.0f} {milliseconds / end_ms:13.0%}")
