@@ -59,7 +59,7 @@ from hydra import compose, initialize_config_module
 from network_parts import network_parts
 from tensordict import TensorDictBase
 
-from torchrl_ahrs.app.shared.config import network_precision, num_minibatches
+from torchrl_ahrs.app.shared.config import collection_threads, network_precision, num_minibatches
 from torchrl_ahrs.app.train.build import build_networks, env_factory
 from torchrl_ahrs.reporting.intervals import mean_interval
 from torchrl_ahrs.training.models import compute_dtype, precision_name
@@ -71,6 +71,8 @@ VARIANTS: dict[str, list[str]] = {
     "compile": ["trainer.compile=true"],  # the loss's forward through torch.compile (inductor)
     "threads1": ["trainer.torch_threads=1"],
     "threads2": ["trainer.torch_threads=2"],  # a second intra-op thread for the networks
+    "collect1": ["trainer.collection_threads=1"],  # one torch thread while collecting, the others for the update
+    "collect2": ["trainer.collection_threads=2"],
     "half": ["model.hidden_sizes=[256,128,64]"],  # half of every width of Cassie's [512, 256, 128] (RESULTS round 21)
     # the hidden layers' matrix products in bfloat16 (training/models.py, AutocastMLP), and in float32
     "bf16": ["model.precision=bfloat16"],
@@ -89,7 +91,7 @@ def variant_overrides(variant: str) -> list[str]:
         >>> variant_overrides("fast")
         Traceback (most recent call last):
         ...
-        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2, half, bf16, fp32 (join with +)
+        ValueError: unknown variant 'fast'; known: default, once, compile, threads1, threads2, collect1, collect2, half, bf16, fp32 (join with +)
     """
     overrides = []
     for name in variant.split("+"):
@@ -145,10 +147,16 @@ class PartsBeside:
     def __call__(self, batch: TensorDictBase) -> None:
         if not self._parts:
             self._build(batch)
+        # each part on the torch threads the run gives it: physics and acting those of its collection, the
+        # network work those of its update (trainer.collection_threads, trainer.torch_threads)
+        trainer, threads = self.cfg.trainer, torch.get_num_threads()
+        collecting = collection_threads(trainer)
         for part, run in self._parts.items():
+            torch.set_num_threads(collecting if part in ("physics", "acting") else trainer.torch_threads)
             start = time.perf_counter()
             run()
             self.samples[part].append(1e3 * (time.perf_counter() - start))
+        torch.set_num_threads(threads)
 
 
 class Measured(NamedTuple):
@@ -203,7 +211,7 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         f" {list(model.hidden_sizes)} {model.activation}, actor in"
         f" {precision_name(compute_dtype(network_precision(model, 'actor')))}, critic in"
         f" {precision_name(compute_dtype(network_precision(model, 'critic')))},"
-        f" torch threads {trainer.torch_threads};"
+        f" torch threads {trainer.torch_threads} ({collection_threads(trainer)} collecting);"
         f" load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}"
     )
     end_ms = rows["end to end (train)"]

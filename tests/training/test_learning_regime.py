@@ -93,4 +93,5 @@ def test_cassie_preset_carries_the_measured_2p5m_settings():
     assert cfg.trainer.task_overrides.commands.resampling_time_s == 5.0  # in training only (round 39)
     assert cfg.task.commands.resampling_time_s == 10.0  # evaluate scores the task as defined
     assert cfg.trainer.torch_threads == 2  # the run alone on 2 cores (session 34)
+    assert cfg.trainer.collection_threads == 1  # one of them while the physics steps on its own (session 38)
     assert cfg.model.precision == "auto"  # bfloat16 where the hardware has it (session 35)

@@ -13,6 +13,8 @@ from torchrl_ahrs.app.shared.run_dir import RunDirectory
 from torchrl_ahrs.app.train.build import build_networks, env_factory
 from torchrl_ahrs.app.train.iteration import train
 from torchrl_ahrs.app.train.runs import read_scalar
+from torchrl_ahrs.envs.backends.mujoco_base import BatchedMujocoEnv
+from torchrl_ahrs.training.loss import HybridClipPPOLoss
 from torchrl_ahrs.training.run import LoopSettings
 from torchrl_ahrs.value import WeightedMultiGAE
 
@@ -90,6 +92,41 @@ def test_an_unknown_advantage_pass_is_refused_in_one_line(tmp_path):
         LoopSettings(total_frames=64, advantage_pass="per_minibatch")
     with pytest.raises(ConfigError, match="trainer.compile must be true or false"):
         train(make_cfg(*TINY, "trainer.compile=yes"), tmp_path / "run")
+
+
+def test_collection_threads_step_the_envs_and_the_update_keeps_torch_threads_with_the_same_numbers(
+    tmp_path, monkeypatch
+):
+    """trainer.collection_threads=1 with torch_threads=2: every environment step of the collector sees one torch
+    thread, every loss forward two, and the run afterwards is left with two. Oracle: the run with both phases on two
+    threads; small networks and elementwise rewards compute the same numbers on one thread, so the two runs are the
+    same bit for bit (what lets Cassie's preset take the option without a learning check)."""
+    threads_at: dict[str, list[int]] = {"step": [], "loss": []}
+    step, forward = BatchedMujocoEnv._step, HybridClipPPOLoss.forward
+
+    def counted_step(self, tensordict):
+        threads_at["step"].append(torch.get_num_threads())
+        return step(self, tensordict)
+
+    def counted_forward(self, tensordict):
+        threads_at["loss"].append(torch.get_num_threads())
+        return forward(self, tensordict)
+
+    monkeypatch.setattr(BatchedMujocoEnv, "_step", counted_step)
+    monkeypatch.setattr(HybridClipPPOLoss, "forward", counted_forward)
+    one, one_state = run_once(tmp_path, "one", "trainer.torch_threads=2", "trainer.collection_threads=1")
+    collected_steps = ITERATIONS * FRAMES // 8  # 8 environments; the start-up's reward check stepped before these
+    assert threads_at["step"][-collected_steps:] == [1] * collected_steps
+    assert set(threads_at["loss"]) == {2}
+    assert torch.get_num_threads() == 2
+    threads_at["step"].clear()
+    two, two_state = run_once(tmp_path, "two", "trainer.torch_threads=2")  # null: the update's threads
+    assert set(threads_at["step"]) == {2}
+    for part in ("actor", "critic", "estimator", "optimizer"):
+        assert str(one_state[part]) == str(two_state[part]), part  # bit for bit (str: nested dicts of tensors)
+    assert train_scalars(one) == train_scalars(two)
+    with pytest.raises(ConfigError, match="trainer.collection_threads must be a positive integer, got 0"):
+        train(make_cfg(*TINY, "trainer.collection_threads=0"), tmp_path / "zero")
 
 
 def test_a_loss_that_overflows_under_a_finite_gradient_is_refused_naming_it(tmp_path, monkeypatch):

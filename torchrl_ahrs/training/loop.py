@@ -69,10 +69,17 @@ def learn(run: TrainingRun) -> dict[str, float]:
     # itself stays the one the optimiser, the checkpoint and the collector know
     loss_forward = torch.compile(run.loss) if settings.compile else run.loss
     latest: dict[str, float] = {}
+    # torch's threads: the update's as set by the caller; while the collector steps, collection_threads. A CPU
+    # simulation steps on threads of its own, and every small exp or tanh of the rewards and the policy's sampling
+    # wakes a sleeping second torch thread, which costs more than it computes (RESULTS, session 38)
+    update_threads = torch.get_num_threads()
+    collection_threads = settings.collection_threads or update_threads
     last_time = time.perf_counter()
     try:
+        torch.set_num_threads(collection_threads)
         for batch in run.collector:
             # ---- 1. collect: batch [N, T], N envs x T steps of the current policy ---------------------------
+            torch.set_num_threads(update_threads)  # collected: the update's threads until the next collection
             guard(batch)  # one NaN reward would poison every advantage through the GAE recursion
             progress.collected_frames += batch.numel()
             frames = progress.collected_frames
@@ -172,6 +179,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
                 after(batch, metrics)
             if frames >= settings.total_frames:
                 break
+            torch.set_num_threads(collection_threads)  # the next collection
         run.scheduler.close()  # waits for (and applies) a decision still being made in the background
     except AuxiliaryRewardError:
         # the file's failure ends the run; what was learnt so far is kept: the state the failed iteration began
@@ -180,6 +188,7 @@ def learn(run: TrainingRun) -> dict[str, float]:
             run.after_failure()
         raise
     finally:
+        torch.set_num_threads(update_threads)
         run.collector.shutdown()
     return latest
 

@@ -36,7 +36,8 @@ class LoopSettings:
     before each epoch, ``"once_per_batch"`` only before the first (the same update with one epoch; a value clip
     then clips around the collecting critic's values, as rl_games' does, not the epoch's); ``compile``: the
     loss's forward (actor, critic and the PPO terms) runs through ``torch.compile`` (inductor), compiled at the
-    first minibatch.
+    first minibatch; ``collection_threads``: torch's intra-op threads while the collector steps the environments
+    (``None``: the update's, those set when the loop starts), restored for the update.
 
     Example:
         >>> LoopSettings(total_frames=4096, num_minibatches=0)
@@ -53,11 +54,14 @@ class LoopSettings:
     kl_target: float | None = None
     advantage_pass: str = "every_epoch"
     compile: bool = False
+    collection_threads: int | None = None
 
     def __post_init__(self):
         for name in ("total_frames", "num_epochs", "num_minibatches"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.collection_threads is not None and self.collection_threads < 1:
+            raise ValueError(f"collection_threads must be at least 1, got {self.collection_threads}")
         if self.kl_target is not None and self.kl_target <= 0:
             raise ValueError(f"the KL target must be positive, got {self.kl_target}")
         if self.advantage_pass not in ADVANTAGE_PASSES:

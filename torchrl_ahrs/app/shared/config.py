@@ -68,6 +68,13 @@ def num_minibatches(cfg: DictConfig) -> int:
     return cfg.trainer.frames_per_batch // cfg.trainer.mini_batch_size
 
 
+def collection_threads(trainer: DictConfig) -> int:
+    """Torch's intra-op threads while the collector steps: ``trainer.collection_threads``, or ``torch_threads``
+    where it is null (or absent, in a run saved before the key)."""
+    threads = trainer.get("collection_threads")
+    return trainer.torch_threads if threads is None else threads
+
+
 def validate_config(cfg: DictConfig) -> None:
     """Raises :class:`ConfigError` with one clear line for the first impossible value."""
     refuse_renamed(dotted_keys(OmegaConf.to_container(cfg, resolve=False)))
@@ -83,6 +90,7 @@ def validate_config(cfg: DictConfig) -> None:
         "trainer.mini_batch_size": trainer.mini_batch_size,
         "trainer.workers": trainer.workers,
         "trainer.torch_threads": trainer.torch_threads,
+        "trainer.collection_threads": collection_threads(trainer),
         "scheduler.interval": cfg.scheduler.interval if cfg.scheduler.get("interval") is not None else 1,
         "scheduler.decisions": cfg.scheduler.get("decisions", 1),
         "scheduler.history_length": cfg.scheduler.history_length,

@@ -19,7 +19,13 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from torchrl_ahrs.app.shared.config import network_precision, num_minibatches, save_config, validate_config
+from torchrl_ahrs.app.shared.config import (
+    collection_threads,
+    network_precision,
+    num_minibatches,
+    save_config,
+    validate_config,
+)
 from torchrl_ahrs.app.shared.errors import ConfigError
 from torchrl_ahrs.app.shared.run_dir import METRICS, RunDirectory
 from torchrl_ahrs.app.train.build import (
@@ -154,6 +160,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, Any]:
         kl_target=cfg.ppo.get("kl_target"),  # the adaptive-KL rule, in place of the anneal
         advantage_pass=cfg.ppo.get("advantage_pass", "every_epoch"),  # a run saved before the key: every epoch
         compile=compile_loss,
+        collection_threads=collection_threads(cfg.trainer),
     )
     # the run's state: one entry per owner (listed in app/train/checkpoint.py); saved after the iteration's last step
     registry: dict[str, Any] = {
