@@ -9,7 +9,9 @@ Usage::
 a name of :data:`VARIANTS` or several joined by ``+``, its Hydra overrides after those of the command line.
 ``--runs N`` measures each variant N times, one after another; the summary then gives the medians over the runs
 and each run's share of its floor, and from three runs on the mean share with its 95 % bootstrap interval
-(rliable's, via ``reporting.intervals``). One run already gives an interval over its timed batches (below).
+(rliable's, via ``reporting.intervals``). One run already gives an interval over its timed batches (below). The
+summary's ``speed`` compares variants on iterations paced by :func:`metronome`, timed beside them, so that the VM's
+drift between variants cancels.
 
 Composes the config as ``python -m torchrl_ahrs.train task=<task> method=<method>`` does (the task's preset
 included; extra Hydra overrides follow the flags), then runs :func:`torchrl_ahrs.app.train.iteration.train` itself
@@ -101,6 +103,15 @@ def variant_overrides(variant: str) -> list[str]:
     return overrides
 
 
+def metronome(size: int = 256, products: int = 20) -> None:
+    """Work no variant changes, timed beside each batch on one torch thread: ``products`` float32 products of two
+    ``[size, size]`` matrices (~10 ms on a 2-core EPYC). Variants measured minutes apart compare iterations paced by
+    it, and the physics no longer serves: a variant may change the collection's threads, and so the physics."""
+    matrix = torch.ones(size, size)
+    for _ in range(products):
+        matrix = torch.mm(matrix, matrix).clamp_(max=1.0)  # stays finite: the same arithmetic every time
+
+
 class PartsBeside:
     """The parts of an iteration timed beside each batch of the end-to-end run, off its clock.
 
@@ -113,6 +124,8 @@ class PartsBeside:
     Timing the parts in the same seconds as the iterations they are compared with keeps the shares immune to the VM's
     drift in speed, which moved parts timed minutes apart by up to twofold (benchmarks/RESULTS.md, session 37).
     ``samples[part]`` holds one time per batch, in milliseconds; ``labels[part]`` names the part's row.
+    ``samples["metronome"]`` times :func:`metronome` beside each batch too: work no variant changes, against which
+    variants measured minutes apart compare their speed.
     """
 
     def __init__(self, cfg):
@@ -134,7 +147,7 @@ class PartsBeside:
                 _, state = env.step_and_maybe_reset(env.rand_action(state))
 
         work = network_parts(cfg, make_envs, build_networks(cfg, make_envs), batch.clone())
-        self._parts = {"physics": physics, **work.per_batch()}
+        self._parts = {"physics": physics, **work.per_batch(), "metronome": metronome}
         passes = work.advantage_passes_per_batch
         self.labels = {
             "physics": "physics (random actions)",
@@ -152,7 +165,9 @@ class PartsBeside:
         trainer, threads = self.cfg.trainer, torch.get_num_threads()
         collecting = collection_threads(trainer)
         for part, run in self._parts.items():
-            torch.set_num_threads(collecting if part in ("physics", "acting") else trainer.torch_threads)
+            torch.set_num_threads(
+                1 if part == "metronome" else collecting if part in ("physics", "acting") else trainer.torch_threads
+            )
             start = time.perf_counter()
             run()
             self.samples[part].append(1e3 * (time.perf_counter() - start))
@@ -165,7 +180,7 @@ class Measured(NamedTuple):
     floor: float  # [ms per batch]
     end_to_end: float  # [ms per batch]
     share: float  # mean over iterations of floor / end to end
-    physics_paced: float  # mean over iterations of end to end / the physics beside it: a drift-free pace
+    paced: float  # mean over iterations of end to end / the metronome beside it: a drift-free pace
 
 
 def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace) -> Measured:
@@ -228,9 +243,10 @@ def measure(cfg, task: str, method: str, variant: str, args: argparse.Namespace)
         _, low, high = mean_interval(shares)
         interval = f", 95 % bootstrap interval [{low:.0%}, {high:.0%}]"
     print(f"  of floor over the iterations: mean {mean_share:.0%}{interval}")
-    # the iteration in units of the physics stepped in its own seconds: variants measured minutes apart compare on
-    # this (physics is the same work in every variant), where their frames/s would carry the VM's drift
-    paced = statistics.fmean(end / physics for end, physics in zip(end_to_end, parts["physics"], strict=True))
+    # the iteration in units of the metronome timed in its own seconds: variants measured minutes apart compare on
+    # this (the same work in every variant: a variant may change the physics' threads), where their frames/s would
+    # carry the VM's drift
+    paced = statistics.fmean(end / beat for end, beat in zip(end_to_end, parts["metronome"], strict=True))
     return Measured(rows["floor = physics + loss steps"], end_ms, mean_share, paced)
 
 
@@ -272,10 +288,10 @@ def main() -> None:
     if len(results) > 1 or args.runs > 1:  # one line per variant: medians over its runs
         first = results[variants[0]][0]
         first_floor = statistics.median(run.floor for run in first)
-        first_paced = statistics.median(run.physics_paced for run in first)
+        first_paced = statistics.median(run.paced for run in first)
         print(
             f"variants side by side (medians of {args.runs} run(s); of its own floor, of {variants[0]}'s, and its"
-            f" speed against {variants[0]}'s, each iteration timed against the physics stepped beside it)"
+            f" speed against {variants[0]}'s, each iteration timed against a fixed matrix product beside it)"
         )
         print(
             f"  {'variant':34s} {'end to end ms':>13s} {'frames/s':>9s} {'floor ms':>9s} {'of floor':>9s} {'of first':>9s}"
@@ -286,7 +302,7 @@ def main() -> None:
             end_to_end = statistics.median(run.end_to_end for run in runs)
             floor = statistics.median(run.floor for run in runs)
             shares = [run.share for run in runs]  # each run's mean share over its iterations
-            speed = first_paced / statistics.median(run.physics_paced for run in runs)
+            speed = first_paced / statistics.median(run.paced for run in runs)
             print(
                 f"  {variant:34s} {end_to_end:13.1f} {1e3 * frames / end_to_end:9.0f} {floor:9.1f}"
                 f" {statistics.median(shares):9.0%} {first_floor / end_to_end:9.0%} {speed:5.2f}x"

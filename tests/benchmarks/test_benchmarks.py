@@ -156,7 +156,7 @@ def test_bench_floor_measures_variants_side_by_side_in_one_process(monkeypatch, 
     summary = out.split("variants side by side")[1].splitlines()[2:]
     assert [row.split()[0] for row in summary] == ["default", "once"]
     assert all(row.endswith("%") for row in summary)
-    # speed against the first, each paced by its own physics: the first against itself is 1
+    # speed against the first, each paced by its own metronome: the first against itself is 1
     assert summary[0].split()[6] == "1.00x" and summary[1].split()[6].endswith("x")
 
 
