@@ -3,6 +3,7 @@
 In the order it runs (the section comments in :func:`learn` carry these numbers)::
 
     1. collect       the Collector steps N envs x T steps with the current policy              -> batch [N, T]
+                     (on LoopSettings.collection_threads torch threads; the update gets its own back)
                      (the env's RewardComponents wrote ("next", "reward", c), c = 1..K); FiniteGuard stops on NaN
     2. returns       reward/<c> (mean per step), return/<c> (episodes that ended), the scheduler's statistics
     3. PPO epochs    per epoch (advantage_pass="every_epoch"; "once_per_batch": before the first epoch only):
