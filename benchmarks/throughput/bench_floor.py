@@ -105,7 +105,7 @@ def variant_overrides(variant: str) -> list[str]:
 
 def metronome(size: int = 256, products: int = 20) -> None:
     """Work no variant changes, timed beside each batch on one torch thread: ``products`` float32 products of two
-    ``[size, size]`` matrices (~10 ms on a 2-core EPYC). Variants measured minutes apart compare iterations paced by
+    ``[size, size]`` matrices (~7 ms on a 2-core EPYC). Variants measured minutes apart compare iterations paced by
     it, and the physics no longer serves: a variant may change the collection's threads, and so the physics."""
     matrix = torch.ones(size, size)
     for _ in range(products):
