@@ -16,7 +16,9 @@ Peers (``pip install -e ".[bench]"``; a peer whose package is absent is skipped,
 * ``torchrl``: TorchRL's ``sota-implementations/ppo`` MuJoCo settings on gymnasium's Ant-v5
   (``reference_ppo.py``); ``sb3``: stable-baselines3 PPO with rl-baselines3-zoo's Ant settings and
   ``VecNormalize`` on gymnasium's Ant-v5; ``rsl_rl``: rsl-rl-lib's ``OnPolicyRunner`` with legged_gym's
-  Cassie PPO on our ``CassieEnv`` (``rsl_rl_adapter.py``). Sources and numbers: ``learning_peers.py``.
+  Cassie PPO on our ``CassieEnv`` (``rsl_rl_adapter.py``); ``rsl_rl_mirror`` (context, run only when named in
+  ``--peers``): the same with rsl-rl-lib's symmetry augmentation and bfloat16 autocast. Sources and numbers:
+  ``learning_peers.py``.
 
 Protocol. Runs go one at a time by default, each ``(peer, seed)`` in its own process. ``--lanes 2`` runs two
 at once in seed order (ours and the peer of the first seed start together; each next run starts when a lane
@@ -74,13 +76,15 @@ from record_learning_run import read_scalar
 HERE = Path(__file__).resolve().parent
 TASKS: dict[str, dict[str, Any]] = {
     "ant_v5": {"peers": ["ours", "torchrl", "sb3"], "thresholds": [1000.0, 2000.0]},
-    "cassie": {"peers": ["ours", "rsl_rl"], "thresholds": [10.0, 20.0]},
+    # "context": peers run only when named in --peers (learning_peers.py says what each one measures)
+    "cassie": {"peers": ["ours", "rsl_rl"], "context": ["rsl_rl_mirror"], "thresholds": [10.0, 20.0]},
 }
 MODULES = {
     "ours": [],
     "torchrl": ["gymnasium", "mujoco"],
     "sb3": ["stable_baselines3", "gymnasium"],
     "rsl_rl": ["rsl_rl"],
+    "rsl_rl_mirror": ["rsl_rl"],
 }
 POLL_S = 0.2  # how often ours' metric file is read for new iterations (the wall-time resolution of its curve)
 
@@ -409,13 +413,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--lanes", type=int, default=1, help="runs at a time (default 1; the docstring says when 2)")
     args = parser.parse_args(argv)
     args.peers = args.peers or TASKS[args.task]["peers"]
-    unknown = [p for p in args.peers if p not in TASKS[args.task]["peers"]]
+    known = TASKS[args.task]["peers"] + TASKS[args.task].get("context", [])
+    unknown = [p for p in args.peers if p not in known]
     if unknown or args.minutes <= 0 or args.lanes < 1:
-        parser.error(
-            f"peers for {args.task}: {TASKS[args.task]['peers']}"
-            if unknown
-            else "--minutes and --lanes must be positive"
-        )
+        parser.error(f"peers for {args.task}: {known}" if unknown else "--minutes and --lanes must be positive")
     args.thresholds = args.thresholds or TASKS[args.task]["thresholds"]
     skipped = {p: f"{', '.join(m)} not installed" for p in args.peers if (m := missing_modules(p))}
     args.out.mkdir(parents=True, exist_ok=True)

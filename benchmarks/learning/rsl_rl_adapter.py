@@ -11,13 +11,14 @@ bootstraps (``r += γ V(s)``), as legged_gym reports them.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
+from torchrl_ahrs.envs.common.mirror import SignedPermutation
 from torchrl_ahrs.evaluation.render import base_env
 
 
@@ -91,3 +92,28 @@ class RslRlVecEnv(VecEnv):
             self.on_rollout(self.clock(), self.steps * n, self._finished)
             self._finished = []
         return self.get_observations(), reward, done.long(), {"time_outs": time_outs.to(torch.float32)}
+
+
+def mirror_augmentation(maps: Mapping[str, SignedPermutation]) -> Callable[..., tuple]:
+    """rsl-rl-lib's ``data_augmentation_func`` (``algorithm.symmetry_cfg``) from a task's mirror maps
+    (:func:`torchrl_ahrs.envs.registry.task_mirror`): observations ``{"policy": [B, O]}`` and actions ``[B, A]``, each
+    followed by its mirror image ``[2B]``, as our ``ppo.mirror`` trains every minibatch; ``None`` stays ``None``.
+
+    Example:
+        >>> flip = SignedPermutation((1, 0), (-1.0, -1.0))  # swap and negate: its own inverse
+        >>> augment = mirror_augmentation({"observation": flip, "action": flip})
+        >>> obs, actions = augment(env=None, obs=TensorDict(policy=torch.tensor([[1.0, 2.0]]), batch_size=[1]),
+        ...                        actions=torch.tensor([[3.0, 4.0]]))
+        >>> obs["policy"].tolist(), actions.tolist()
+        ([[1.0, 2.0], [-2.0, -1.0]], [[3.0, 4.0], [-4.0, -3.0]])
+    """
+    observation, action = maps["observation"], maps["action"]
+
+    def augment(env=None, obs: TensorDict | None = None, actions: torch.Tensor | None = None) -> tuple:
+        if obs is not None:
+            obs = torch.cat([obs, obs.apply(observation)], 0)  # every observation group of the policy: [2B, O]
+        if actions is not None:
+            actions = torch.cat([actions, action(actions)], 0)
+        return obs, actions
+
+    return augment

@@ -162,3 +162,54 @@ def test_the_torchrl_peer_observes_what_our_ant_env_observes_and_a_mismatch_is_r
         require_our_observation("ant_v5", sizes[1])
     with pytest.raises(ValueError, match="mirrors task ant_v5, not 'cassie'"):
         ours_gymnasium_kwargs("cassie")
+
+
+def test_the_rsl_rl_mirror_peer_trains_every_minibatch_with_its_mirror_image_in_bfloat16(tmp_path, monkeypatch):
+    """One rsl-rl-lib iteration of the context peer on Cassie: rsl_rl's own symmetry extension is fed our task's
+    mirror maps (oracle: applying the map's image again gives back the minibatch), every minibatch of 384 rows comes
+    back as 768, and the runner's PPO runs under its bfloat16 autocast."""
+    pytest.importorskip("rsl_rl")
+    sys.path.insert(0, str(LEARNING))
+    try:
+        import learning_peers
+        import rsl_rl_adapter
+    finally:
+        sys.path.remove(str(LEARNING))
+    from rsl_rl.algorithms import PPO
+
+    from torchrl_ahrs.app.shared.settings import load_task_settings
+    from torchrl_ahrs.envs.registry import task_mirror
+
+    maps = task_mirror(load_task_settings("cassie"))
+    rows: list[tuple[int, int]] = []
+    built = rsl_rl_adapter.mirror_augmentation
+
+    def checked(task_maps):
+        augment = built(task_maps)
+
+        def run(env=None, obs=None, actions=None):
+            out_obs, out_actions = augment(env=env, obs=obs, actions=actions)
+            if obs is not None:
+                originals, images = out_obs["policy"].split(obs.batch_size[0])
+                assert torch.equal(originals, obs["policy"])
+                assert torch.equal(maps["observation"](images), obs["policy"])  # a mirror is its own inverse
+                rows.append((obs.batch_size[0], out_obs.batch_size[0]))
+            return out_obs, out_actions
+
+        return run
+
+    monkeypatch.setattr(rsl_rl_adapter, "mirror_augmentation", checked)
+    precisions = []
+    update = PPO.update
+
+    def recorded(self):
+        precisions.append(self.use_mixed_precision)
+        return update(self)
+
+    monkeypatch.setattr(PPO, "update", recorded)
+    budget = learning_peers.Budget(t0=learning_peers.time.time(), seconds=600.0, frames=64 * 24)
+    curve = learning_peers.CurveWriter(tmp_path / "curve.csv")
+    _, info = learning_peers.PEERS["rsl_rl_mirror"]("cassie", 0, budget, curve)
+    assert info["trained_frames"] == 64 * 24 and info["settings"]["algorithm"]["use_mixed_precision"] is True
+    assert rows == [(384, 768)] * (5 * 4)  # 5 epochs x 4 minibatches, each followed by its image
+    assert precisions == [True]
