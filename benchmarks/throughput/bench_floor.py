@@ -132,7 +132,7 @@ class PartsBeside:
         self.cfg = cfg
         self.samples: dict[str, list[float]] = {}
         self.labels: dict[str, str] = {}
-        self._parts: dict[str, Callable[[], None]] = {}
+        self._parts: dict[str, tuple[Callable[[], None], int]] = {}  # part -> (its closure, its torch threads)
 
     def _build(self, batch: TensorDictBase) -> None:
         cfg = self.cfg
@@ -147,7 +147,17 @@ class PartsBeside:
                 _, state = env.step_and_maybe_reset(env.rand_action(state))
 
         work = network_parts(cfg, make_envs, build_networks(cfg, make_envs), batch.clone())
-        self._parts = {"physics": physics, **work.per_batch(), "metronome": metronome}
+        # each part on the torch threads the run gives it: physics and acting those of its collection, the network
+        # work those of its update; the metronome always one
+        collecting, updating = collection_threads(cfg.trainer), cfg.trainer.torch_threads
+        network = work.per_batch()
+        self._parts = {
+            "physics": (physics, collecting),
+            "acting": (network["acting"], collecting),
+            "advantages": (network["advantages"], updating),
+            "loss steps": (network["loss steps"], updating),
+            "metronome": (metronome, 1),
+        }
         passes = work.advantage_passes_per_batch
         self.labels = {
             "physics": "physics (random actions)",
@@ -160,14 +170,9 @@ class PartsBeside:
     def __call__(self, batch: TensorDictBase) -> None:
         if not self._parts:
             self._build(batch)
-        # each part on the torch threads the run gives it: physics and acting those of its collection, the
-        # network work those of its update (trainer.collection_threads, trainer.torch_threads)
-        trainer, threads = self.cfg.trainer, torch.get_num_threads()
-        collecting = collection_threads(trainer)
-        for part, run in self._parts.items():
-            torch.set_num_threads(
-                1 if part == "metronome" else collecting if part in ("physics", "acting") else trainer.torch_threads
-            )
+        threads = torch.get_num_threads()
+        for part, (run, part_threads) in self._parts.items():
+            torch.set_num_threads(part_threads)
             start = time.perf_counter()
             run()
             self.samples[part].append(1e3 * (time.perf_counter() - start))
