@@ -64,6 +64,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess, expected: str) ->
             "error: model.hidden_sizes must list at least one positive width (e.g. [64,64]), got []",
         ),
         ("model.hidden_sizes=[64,0]", "error: model.hidden_sizes must list at least one positive width"),
+        ("model.component_hidden_sizes=[]", "error: model.component_hidden_sizes must list at least one positive"),
         # dmc_cheetah_run ships jog_speed, so the shipped-key check passes it; point_reach's task has no such setting
         ("+trainer.task_overrides.jog_speed=3.0", "error: task.jog_speed is not a setting of task 'point_reach'"),
     ],

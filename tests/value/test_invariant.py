@@ -77,10 +77,13 @@ def column_values(estimator, column: int) -> TensorDictSequential:
     return TensorDictSequential(estimator.value_network, pick)
 
 
-@pytest.mark.parametrize("method", ["mcppo", "ahrs_wo_a"])
-def test_equal_weights_on_the_anchored_mix_are_ppo_with_the_anchors_own_critic(method):
+@pytest.mark.parametrize(
+    ("method", "heads"),
+    [("mcppo", []), ("ahrs_wo_a", []), ("mcppo", ["model.component_hidden_sizes=[8]"])],  # narrower K heads too
+)
+def test_equal_weights_on_the_anchored_mix_are_ppo_with_the_anchors_own_critic(method, heads):
     """Oracle: TorchRL's GAE on the native reward with the anchor's value alone; the K heads play no part."""
-    cfg, estimator, mixed, _ = _mixed_and_oracle(f"method={method}", "ppo.mix=anchored")
+    cfg, estimator, mixed, _ = _mixed_and_oracle(f"method={method}", "ppo.mix=anchored", *heads)
     assert estimator.columns == [*estimator.components, "anchor"]
     rollout = _anchored_rollout(cfg)
     oracle = GAE(gamma=cfg.ppo.gamma, lmbda=cfg.ppo.lmbda, value_network=column_values(estimator, -1))

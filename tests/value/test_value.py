@@ -140,12 +140,14 @@ def test_forward_has_its_own_docstring():
     assert "Σ_k w_k A_k" in WeightedMultiGAE.forward.__doc__
 
 
-def test_the_anchor_head_is_a_network_of_its_own_that_starts_as_ppos_critic():
+@pytest.mark.parametrize("head_sizes", [[16, 16], [4]])  # the K heads as wide as PPO's critic, or narrower
+def test_the_anchor_head_is_a_network_of_its_own_that_starts_as_ppos_critic(head_sizes):
     torch.manual_seed(3)
     ppo_critic = MultiHeadCritic(OBS, 1, [16, 16])
     torch.manual_seed(3)
-    anchored = MultiHeadCritic(OBS, K, [16, 16], anchor_head=True)
+    anchored = MultiHeadCritic(OBS, K, head_sizes, anchor_head=True, anchor_hidden_sizes=[16, 16])
     assert anchored.anchor is not None
+    assert [layer.out_features for layer in anchored.net if isinstance(layer, torch.nn.Linear)] == [*head_sizes, K]
     pairs = zip(ppo_critic.net.state_dict().values(), anchored.anchor.state_dict().values(), strict=True)
     for ppo_tensor, anchor_tensor in pairs:
         assert torch.equal(ppo_tensor, anchor_tensor)  # the same draws: an anchored method begins where PPO does

@@ -249,7 +249,11 @@ def build_critic(
     separate_heads: bool = False,
     in_key: str = "observation",
     anchor_head: bool = False,
+    anchor_hidden_sizes: Sequence[int] | None = None,
 ) -> TensorDictModule:
-    """A :class:`MultiHeadCritic` writing ``"state_value"`` ``[*B, K]`` (``[*B, K + 1]`` with ``anchor_head``)."""
-    critic = MultiHeadCritic(obs_dim, num_heads, hidden_sizes, activation, separate_heads, anchor_head)
+    """A :class:`MultiHeadCritic` writing ``"state_value"`` ``[*B, K]`` (``[*B, K + 1]`` with ``anchor_head``);
+    ``hidden_sizes`` are the K heads' widths, ``anchor_hidden_sizes`` the anchor's (``None``: the same)."""
+    critic = MultiHeadCritic(
+        obs_dim, num_heads, hidden_sizes, activation, separate_heads, anchor_head, anchor_hidden_sizes
+    )
     return TensorDictModule(nn.Sequential(obs_norm, critic), in_keys=[in_key], out_keys=["state_value"])

@@ -63,8 +63,8 @@ class MultiHeadCritic(nn.Module):
 
     ``separate_heads=False``: a shared trunk whose last layer has K outputs (cheap, shared features).
     ``separate_heads=True``: K independent MLPs evaluated as one batched computation (no loop over K).
-    ``anchor_head=True``: one more value, from an MLP of its own (the same widths), appended as column K + 1: the
-    anchored mix's value of the summed reward (:class:`~torchrl_ahrs.value.WeightedMultiGAE` with
+    ``anchor_head=True``: one more value, from an MLP of its own (``anchor_hidden_sizes`` wide), appended as column
+    K + 1: the anchored mix's value of the summed reward (:class:`~torchrl_ahrs.value.WeightedMultiGAE` with
     ``anchored=True``), learnt apart from the K heads as PPO's one critic is.
 
     Args:
@@ -74,6 +74,9 @@ class MultiHeadCritic(nn.Module):
         activation: ``"tanh"``, ``"relu"`` or ``"elu"``.
         separate_heads: one MLP per component instead of a shared trunk.
         anchor_head: append the anchor's value from a separate MLP.
+        anchor_hidden_sizes: the anchor's widths; ``None``: ``hidden_sizes``. The anchor is PPO's critic, so its
+            widths are PPO's, while the K heads, read only through a schedule's departures from equal weights, may
+            be narrower (``model.component_hidden_sizes``).
 
     Shapes: ``observation [*B, in] -> state_value [*B, K]`` (``[*B, K + 1]`` with ``anchor_head``).
 
@@ -85,6 +88,8 @@ class MultiHeadCritic(nn.Module):
         torch.Size([10, 4])
         >>> MultiHeadCritic(8, 4, [32], anchor_head=True)(torch.zeros(10, 8)).shape
         torch.Size([10, 5])
+        >>> MultiHeadCritic(8, 4, [16], anchor_head=True, anchor_hidden_sizes=[32]).anchor[0].out_features
+        32
     """
 
     def __init__(
@@ -95,6 +100,7 @@ class MultiHeadCritic(nn.Module):
         activation: str = "tanh",
         separate_heads: bool = False,
         anchor_head: bool = False,
+        anchor_hidden_sizes: Sequence[int] | None = None,
     ):
         super().__init__()
         if num_heads < 1:
@@ -103,7 +109,8 @@ class MultiHeadCritic(nn.Module):
         self.separate_heads = separate_heads
         # built first: for a seed, the anchor starts from the weights PPO's one-head critic starts from (the same
         # draws at the same point), so an anchored method at equal weights begins where PPO begins
-        self.anchor = make_mlp(in_features, hidden_sizes, 1, activation) if anchor_head else None
+        anchor_sizes = hidden_sizes if anchor_hidden_sizes is None else anchor_hidden_sizes
+        self.anchor = make_mlp(in_features, anchor_sizes, 1, activation) if anchor_head else None
         if not separate_heads:
             self.net = make_mlp(in_features, hidden_sizes, num_heads, activation)
             return

@@ -161,11 +161,12 @@ def build_networks(
             critic_norm,
             critic_obs_dim,
             len(make_envs.components),
-            model.hidden_sizes,
+            model.get("component_hidden_sizes") or model.hidden_sizes,  # the K heads' MLP
             model.activation,
             model.separate_heads,
             in_key=critic_key,
             anchor_head=anchored(cfg, len(make_envs.components)),  # the summed reward's value, an MLP of its own
+            anchor_hidden_sizes=model.hidden_sizes,  # PPO's critic, as wide as PPO's
         )
     actor.to(device)  # moves actor_norm (and critic_norm when they are one module) too
     if critic is not None:

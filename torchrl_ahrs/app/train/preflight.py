@@ -175,12 +175,14 @@ def check_config(cfg: DictConfig) -> None:
     seed = cfg.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
         raise PreflightError(f"seed must be an integer, got {seed!r}")
-    model = cfg.get("model")
-    if model is not None and "hidden_sizes" in model:
-        sizes = model.hidden_sizes
+    model = cfg.get("model") or {}
+    for name in ("hidden_sizes", "component_hidden_sizes"):
+        if name not in model or (name == "component_hidden_sizes" and model[name] is None):  # null: hidden_sizes'
+            continue
+        sizes = model[name]
         if not sizes or not all(isinstance(size, int) and not isinstance(size, bool) and size > 0 for size in sizes):
             raise PreflightError(
-                f"model.hidden_sizes must list at least one positive width (e.g. [64,64]), got {list(sizes or [])}"
+                f"model.{name} must list at least one positive width (e.g. [64,64]), got {list(sizes or [])}"
             )
     logger = cfg.get("logger")
     if logger is not None:
