@@ -76,7 +76,8 @@ VARIANTS: dict[str, list[str]] = {
     "collect1": ["trainer.collection_threads=1"],  # one torch thread while collecting, the others for the update
     "collect2": ["trainer.collection_threads=2"],
     "half": ["model.hidden_sizes=[256,128,64]"],  # half of every width of Cassie's [512, 256, 128] (RESULTS round 21)
-    "heads_half": ["model.component_hidden_sizes=[256,128,64]"],  # the K heads' critic only; the anchor keeps its widths
+    # half of the K heads' widths only; the anchor (PPO's critic) keeps its own (RESULTS, session 39)
+    "heads_half": ["model.component_hidden_sizes=[256,128,64]"],
     # the hidden layers' matrix products in bfloat16 (training/models.py, AutocastMLP), and in float32
     "bf16": ["model.precision=bfloat16"],
     "fp32": ["model.precision=float32"],

@@ -34,7 +34,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_ahrs.app.shared.config import num_minibatches
 from torchrl_ahrs.app.train.build import Networks, build_estimator_and_loss, build_mirror
-from torchrl_ahrs.training.loop import MINIBATCH_KEYS
+from torchrl_ahrs.training.loop import minibatch_keys
 
 
 @dataclass
@@ -77,7 +77,7 @@ def network_parts(cfg: DictConfig, make_envs, networks: Networks, batch: TensorD
     estimator, loss = build_estimator_and_loss(cfg, networks, make_envs.components)
     with torch.no_grad():
         estimator(batch)  # writes the advantage and value-target keys the loss reads
-    keys = [*loss.in_keys, *MINIBATCH_KEYS]
+    keys = minibatch_keys(loss.in_keys)
     minibatch = batch.reshape(-1)[: trainer.mini_batch_size].select(*keys, strict=False)
     augment = build_mirror(cfg, make_envs.task, loss, networks.critic_key)
     if augment is not None:  # the loss trains on the minibatch and its image, as any symmetric PPO does

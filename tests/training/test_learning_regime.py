@@ -41,6 +41,24 @@ def test_each_epoch_serves_every_transition_once_in_a_fresh_order():
     assert all(sorted(order) == list(range(10)) for order in epochs) and epochs[0] != epochs[1]
 
 
+def test_mirrored_minibatches_are_each_minibatch_then_its_image_bit_for_bit():
+    """Oracle: the mirror applied to each minibatch after the gather, as the loop did before it mirrored the
+    epoch once; uneven minibatches (10 rows in 3) included."""
+    from torchrl_ahrs.envs.common.mirror import MirrorAugmentation, SignedPermutation
+
+    flip = SignedPermutation((1, 0, 2), (1.0, 1.0, -1.0))
+    augment = MirrorAugmentation.for_policy(observation=flip, action=flip)
+    batch = TensorDict(
+        {"observation": torch.randn(2, 5, 3), "action": torch.randn(2, 5, 3), "advantage": torch.randn(2, 5, 1)},
+        [2, 5],
+    )
+    folded = epoch_minibatches(batch, 3, torch.Generator().manual_seed(4), augment)
+    each = [augment(mb) for mb in epoch_minibatches(batch, 3, torch.Generator().manual_seed(4))]
+    assert [len(mb) for mb in folded] == [4, 8, 8]
+    for got, expected in zip(folded, each, strict=True):
+        assert all(torch.equal(got[key], expected[key]) for key in ("observation", "action", "advantage"))
+
+
 def test_gae_bootstraps_on_truncation_but_not_on_termination():
     # one step per env, V = 10 everywhere, reward 1: A = r + gamma V(s') (1 - terminated) - V(s)
     critic = TensorDictModule(

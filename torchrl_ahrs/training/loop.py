@@ -30,10 +30,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
 from torch import nn
 
 from torchrl_ahrs.rewards.auxiliary import AuxiliaryRewardError
@@ -45,13 +46,28 @@ from torchrl_ahrs.training.run import TrainingRun
 MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
 
 
+def minibatch_keys(loss_in_keys: Iterable[NestedKey]) -> list[NestedKey]:
+    """The keys a PPO minibatch gathers for a loss whose ``in_keys`` are ``loss_in_keys``: those but the ones
+    under ``"next"``, and :data:`MINIBATCH_KEYS`.
+
+    TorchRL's PPO losses list the next step's reward, done flags and observation among their ``in_keys`` for the
+    advantage they would estimate themselves when a minibatch has none; here the estimator has written it before
+    the epoch, so gathering them (Cassie: 16 tensors) for every minibatch would copy what nothing reads.
+
+    Example:
+        >>> minibatch_keys(["action", ("next", "reward"), "observation"])[:3]
+        ['action', 'observation', 'advantage']
+    """
+    return [key for key in loss_in_keys if not (isinstance(key, tuple) and key[0] == "next")] + list(MINIBATCH_KEYS)
+
+
 def learn(run: TrainingRun) -> dict[str, float]:
     """Trains until ``run.settings.total_frames`` frames are collected; returns the latest value of every
     scalar logged (``reward/<c>``, ``return/<c>``, ``weight/<c>``, ``share/<c>``, ``train/<loss term>``, ...)."""
     settings, progress, optimizer, estimator = run.settings, run.progress, run.optimizer, run.estimator
     components = list(estimator.components)
     tracked = components + ([TOTAL] if TOTAL not in components else [])
-    keys = [*run.loss.in_keys, *MINIBATCH_KEYS]
+    keys = minibatch_keys(run.loss.in_keys)
     scale_key = getattr(run.loss.tensor_keys, "scale", "scale")  # where the collecting policy wrote its Gaussian's σ
     params = [param for group in optimizer.param_groups for param in group["params"]]
     max_norm = math.inf if settings.max_grad_norm is None else settings.max_grad_norm
@@ -115,10 +131,9 @@ def learn(run: TrainingRun) -> dict[str, float]:
                             selected.set("value_target", run.value_norm.normalize(targets))  # (x - mu_k) / sigma_k
                             selected.set("state_value", run.value_norm.normalize(selected.get("state_value")))
                 logged = epoch == settings.num_epochs - 1
-                for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator):
+                # ppo.mirror: each minibatch followed by its mirror image (same advantages and targets)
+                for minibatch in epoch_minibatches(selected, settings.num_minibatches, run.generator, run.augment):
                     progress.optim_steps += 1
-                    if run.augment is not None:  # ppo.mirror: the minibatch, then its mirror image (same reward)
-                        minibatch = run.augment(minibatch)
                     losses = loss_forward(minibatch)
                     # KL and learning rate: with a KL target, this step's rate follows this minibatch's KL from the
                     # collecting to the current policy
@@ -246,10 +261,20 @@ def total_explained_variance(value_target: torch.Tensor, state_value: torch.Tens
     return float(1.0 - error.var() / total.var().clamp_min(1e-12))  # 1 - Var(R - V) / Var(R)
 
 
-def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: torch.Generator) -> list[TensorDictBase]:
+def epoch_minibatches(
+    batch: TensorDictBase,
+    num_minibatches: int,
+    generator: torch.Generator,
+    augment: Callable[[TensorDictBase], TensorDictBase] | None = None,
+) -> list[TensorDictBase]:
     """One PPO epoch's minibatches of ``batch [*B]``: every transition exactly once, in a fresh random order
     (sampling without replacement), as ``num_minibatches`` contiguous views of one gather (a gather per
     minibatch would cost a TensorDict index per key).
+
+    ``augment`` (``ppo.mirror``'s :class:`~torchrl_ahrs.envs.common.mirror.MirrorAugmentation`, ``[n] -> [2n]``:
+    the rows, then their images) makes each minibatch ``[2b]``: its ``b`` transitions, then their images. The
+    whole batch is augmented once and gathered once, so every minibatch is ``augment(minibatch)`` row for row
+    (the image is row-wise) at one mirror per epoch instead of one per minibatch.
 
     Example:
         >>> import torch
@@ -258,10 +283,20 @@ def epoch_minibatches(batch: TensorDictBase, num_minibatches: int, generator: to
         >>> minibatches = epoch_minibatches(batch, 4, torch.Generator().manual_seed(0))
         >>> [len(mb) for mb in minibatches], sorted(torch.cat([mb["x"] for mb in minibatches]).tolist()) == list(range(16))
         ([4, 4, 4, 4], True)
+        >>> negated = lambda td: torch.cat([td, td.apply(torch.neg)], 0)  # a stand-in image: -x
+        >>> doubled = epoch_minibatches(batch, 4, torch.Generator().manual_seed(0), negated)
+        >>> [len(mb) for mb in doubled], bool((doubled[0]["x"][4:] == -minibatches[0]["x"]).all())
+        ([8, 8, 8, 8], True)
     """
     flat = batch.reshape(-1)
-    order = torch.randperm(flat.shape[0], generator=generator, device=generator.device)
-    sizes = [len(chunk) for chunk in order.chunk(num_minibatches)]
+    size = flat.shape[0]
+    order = torch.randperm(size, generator=generator, device=generator.device)
+    chunks = order.chunk(num_minibatches)
+    sizes = [len(chunk) for chunk in chunks]
+    if augment is not None:
+        flat = augment(flat)  # [2n]: row i's image is row n + i
+        order = torch.cat([torch.cat([chunk, chunk + size]) for chunk in chunks])  # each chunk, then its images
+        sizes = [2 * chunk_size for chunk_size in sizes]
     # served last first: the order of the Trainer hook this loop replaced, so seeded runs keep their numbers
     return list(flat[order].split(sizes, 0))[::-1]
 
