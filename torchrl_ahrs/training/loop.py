@@ -47,12 +47,9 @@ MINIBATCH_KEYS = ("advantage", "value_target", "state_value", "loc", "scale")
 
 
 def minibatch_keys(loss_in_keys: Iterable[NestedKey]) -> list[NestedKey]:
-    """The keys a PPO minibatch gathers for a loss whose ``in_keys`` are ``loss_in_keys``: those but the ones
-    under ``"next"``, and :data:`MINIBATCH_KEYS`.
-
-    TorchRL's PPO losses list the next step's reward, done flags and observation among their ``in_keys`` for the
-    advantage they would estimate themselves when a minibatch has none; here the estimator has written it before
-    the epoch, so gathering them (Cassie: 16 tensors) for every minibatch would copy what nothing reads.
+    """What a PPO minibatch gathers: the loss's ``in_keys`` but those under ``"next"``, and :data:`MINIBATCH_KEYS`.
+    (TorchRL's PPO losses list the next step's reward, done and observation for an advantage they would estimate
+    themselves; the estimator wrote it before the epoch, so gathering them, 16 tensors on Cassie, is wasted.)
 
     Example:
         >>> minibatch_keys(["action", ("next", "reward"), "observation"])[:3]
@@ -271,10 +268,9 @@ def epoch_minibatches(
     (sampling without replacement), as ``num_minibatches`` contiguous views of one gather (a gather per
     minibatch would cost a TensorDict index per key).
 
-    ``augment`` (``ppo.mirror``'s :class:`~torchrl_ahrs.envs.common.mirror.MirrorAugmentation`, ``[n] -> [2n]``:
-    the rows, then their images) makes each minibatch ``[2b]``: its ``b`` transitions, then their images. The
-    whole batch is augmented once and gathered once, so every minibatch is ``augment(minibatch)`` row for row
-    (the image is row-wise) at one mirror per epoch instead of one per minibatch.
+    ``augment`` (``ppo.mirror``'s :class:`~torchrl_ahrs.envs.common.mirror.MirrorAugmentation`, ``[n] -> [2n]``,
+    the rows then their images) makes each minibatch ``[2b]``, its rows then their images: ``augment(minibatch)``
+    bit for bit (the image is row-wise), from one mirror and one gather per epoch.
 
     Example:
         >>> import torch
