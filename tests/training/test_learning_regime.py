@@ -13,6 +13,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 
+from torchrl_ahrs.envs.common.mirror import MirrorAugmentation, SignedPermutation
 from torchrl_ahrs.training.loop import adaptive_kl_lr, epoch_minibatches
 from torchrl_ahrs.training.run import LoopSettings
 from torchrl_ahrs.value import WeightedMultiGAE
@@ -44,8 +45,6 @@ def test_each_epoch_serves_every_transition_once_in_a_fresh_order():
 def test_mirrored_minibatches_are_each_minibatch_then_its_image_bit_for_bit():
     """Oracle: the mirror applied to each minibatch after the gather, as the loop did before it mirrored the
     epoch once; uneven minibatches (10 rows in 3) included."""
-    from torchrl_ahrs.envs.common.mirror import MirrorAugmentation, SignedPermutation
-
     flip = SignedPermutation((1, 0, 2), (1.0, 1.0, -1.0))
     augment = MirrorAugmentation.for_policy(observation=flip, action=flip)
     batch = TensorDict(
